@@ -1,0 +1,30 @@
+"""Shared fixtures: the real RGB-D sequences in ../shared/data (skipped cleanly when absent)."""
+import os
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(os.environ.get("RECON_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared data not found at {SHARED_DATA}")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def sevenscenes(shared_data) -> Path:
+    p = shared_data / "7scenes-redkitchen"
+    if not p.is_dir():
+        pytest.skip(f"{p} not found")
+    return p
+
+
+@pytest.fixture(scope="session")
+def iclnuim(shared_data) -> Path:
+    p = shared_data / "iclnuim-livingroom1"
+    if not p.is_dir():
+        pytest.skip(f"{p} not found")
+    return p
