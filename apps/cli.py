@@ -13,7 +13,7 @@ import sys
 from recon.errors import ReconError
 
 # Modules under apps.commands that add subcommands, in help order.
-COMMAND_MODULES = ["info", "convert", "fuse", "evaluate", "bench", "demo"]
+COMMAND_MODULES = ["info", "convert", "fuse", "evaluate", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:

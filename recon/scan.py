@@ -42,6 +42,10 @@ class Intrinsics:
     height: int
 
     def __post_init__(self):
+        for name in ("fx", "fy", "cx", "cy"):  # plain floats, so JSON and reprs stay clean
+            object.__setattr__(self, name, float(getattr(self, name)))
+        for name in ("width", "height"):
+            object.__setattr__(self, name, int(getattr(self, name)))
         vals = (self.fx, self.fy, self.cx, self.cy)
         if not all(np.isfinite(v) for v in vals) or self.fx <= 0 or self.fy <= 0:
             raise ReconError(f"invalid intrinsics: focal lengths must be positive and finite ({self})")

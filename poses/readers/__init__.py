@@ -34,6 +34,7 @@ def open_scan(path: str | os.PathLike, fmt: str = "auto") -> Scan:
     path = Path(path)
     if not path.exists():
         raise ReconError(f"{path}: no such file or folder")
+    path = path.resolve()  # readers store absolute file paths, so the scan works from any directory
     name = detect_format(path) if fmt == "auto" else fmt
     for reader in READERS:
         if reader.NAME == name:

@@ -1,0 +1,39 @@
+"""`recon info`: what a scan contains, or the list of readable formats."""
+import numpy as np
+
+from apps.common import add_scan_args, open_selected_scan, print_json
+
+
+def register(subparsers):
+    p = subparsers.add_parser("info", help="describe a scan (frames, intrinsics, scale, depth)",
+                              description="Read a scan in any supported format and summarise it.")
+    add_scan_args(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+    sub = subparsers.add_parser("formats", help="list the scan formats `--format` accepts")
+    sub.set_defaults(func=run_formats)
+
+
+def run_formats(args):
+    from poses.readers import READERS
+
+    for r in READERS:
+        print(f"{r.NAME:12s} {(r.__doc__ or '').strip().splitlines()[0]}")
+    return 0
+
+
+def run(args):
+    scan = open_selected_scan(args.scan, args)
+    centres = scan.camera_to_world[:, :3, 3]
+    length = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum()) if len(scan) > 1 else 0.0
+    info = {"path": str(scan.root), "format": scan.metadata.source_format, "frames": len(scan),
+            "intrinsics": scan.intrinsics.to_dict(), "metric_scale": scan.metadata.metric_scale,
+            "has_depth": scan.has_depth, "trajectory_length": length,
+            "first_frame": scan.frames[0].name, "last_frame": scan.frames[-1].name,
+            "distorted": scan.distortion is not None, "gt_mesh": scan.metadata.gt_mesh}
+    if args.json:
+        print_json(info)
+    else:
+        for k, v in info.items():
+            print(f"{k:18s} {v}")
+    return 0

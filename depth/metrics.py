@@ -1,0 +1,120 @@
+"""Depth accuracy (Eigen et al.) and temporal coherence of predicted depth maps.
+
+Numpy only, so the trainer can use it for validation. Per-frame metrics are computed
+on pixels whose ground truth lies inside [min_depth, max_depth]; predictions are
+clamped to that range (a missing prediction counts as the nearest bound, never as a
+free pass) and `coverage` says which share of those pixels had a prediction.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from recon.geometry import reproject_depth
+
+DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+
+
+def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3, max_depth: float = 10.0
+                  ) -> dict[str, float] | None:
+    """Metrics of one frame (None when it has no valid GT pixel). pred_m, gt_m: (H, W) metres."""
+    if pred_m.shape != gt_m.shape:
+        raise ValueError(f"prediction {pred_m.shape} and ground truth {gt_m.shape} differ in size")
+    valid = np.isfinite(gt_m) & (gt_m > min_depth) & (gt_m < max_depth)
+    if not valid.any():
+        return None
+    gt = gt_m[valid].astype(np.float64)
+    raw = pred_m[valid].astype(np.float64)
+    covered = np.isfinite(raw) & (raw > 0)
+    pred = np.clip(np.where(covered, raw, min_depth), min_depth, max_depth)
+    diff = pred - gt
+    ratio = np.maximum(pred / gt, gt / pred)
+    return {
+        "abs_rel": float(np.mean(np.abs(diff) / gt)),
+        "abs": float(np.mean(np.abs(diff))),
+        "sq_rel": float(np.mean(diff ** 2 / gt)),
+        "rmse": float(np.sqrt(np.mean(diff ** 2))),
+        "rmse_log": float(np.sqrt(np.mean((np.log(pred) - np.log(gt)) ** 2))),
+        "a1": float(np.mean(ratio < 1.25)),
+        "a2": float(np.mean(ratio < 1.25 ** 2)),
+        "a3": float(np.mean(ratio < 1.25 ** 3)),
+        "coverage": float(np.mean(covered)),
+    }
+
+
+def median_scale(pred_m: np.ndarray, gt_m: np.ndarray) -> float:
+    """Ratio median(gt) / median(pred) on pixels valid in both: aligns non-metric predictions."""
+    both = (pred_m > 0) & (gt_m > 0) & np.isfinite(pred_m) & np.isfinite(gt_m)
+    return float(np.median(gt_m[both]) / np.median(pred_m[both])) if both.any() else 1.0
+
+
+def flicker(pred_a: np.ndarray, pred_b: np.ndarray, K: np.ndarray, a_to_world: np.ndarray, b_to_world: np.ndarray,
+            gt_a: np.ndarray | None = None, gt_b: np.ndarray | None = None, occlusion_rel: float = 0.05
+            ) -> float | None:
+    """Pose-aware disagreement of two consecutive predictions: mean |warp(a) - b| / b over shared pixels.
+
+    Frame a's prediction is reprojected into b with the poses. With GT depth, pixels
+    where the warped GT disagrees with b's GT by more than `occlusion_rel` (occlusions,
+    disocclusions) are excluded, so the figure measures inconsistency, not visibility.
+    """
+    warped = reproject_depth(pred_a, K, a_to_world, b_to_world, pred_b.shape)
+    shared = (warped > 0) & (pred_b > 0)
+    if gt_a is not None and gt_b is not None:
+        gt_warped = reproject_depth(gt_a, K, a_to_world, b_to_world, gt_b.shape)
+        shared &= (gt_warped > 0) & (gt_b > 0) & (np.abs(gt_warped - gt_b) <= occlusion_rel * np.maximum(gt_b, 1e-6))
+    if not shared.any():
+        return None
+    return float(np.mean(np.abs(warped[shared] - pred_b[shared]) / pred_b[shared]))
+
+
+def summarise(per_frame: list[dict[str, float]], flickers: list[float]) -> dict[str, float]:
+    """Average per-frame metrics over frames; temporal keys from the per-frame mean absolute error."""
+    out: dict[str, float] = {"frames": len(per_frame)}
+    if per_frame:
+        for key in (*DEPTH_KEYS, "coverage"):
+            out[key] = float(np.mean([m[key] for m in per_frame]))
+        mae = np.array([m["abs"] for m in per_frame])
+        out["mae_mean"] = float(mae.mean())
+        out["mae_std"] = float(mae.std())
+    out["flicker"] = float(np.mean(flickers)) if flickers else float("nan")
+    return out
+
+
+def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: float = 10.0,
+                          align: str = "none", progress=None) -> dict[str, float]:
+    """Score a folder of predicted maps (`<frame name>.npy|.png`) against a scan's GT depth.
+
+    Predictions of another size are resampled (nearest) onto the GT grid. `align='median'`
+    rescales each prediction by median(gt)/median(pred), for non-metric predictions; the
+    result then says so. Temporal keys come from consecutive frames of the scan.
+    """
+    import cv2
+
+    from recon.errors import ReconError
+    from recon.io import load_depth_map
+
+    if not scan.has_depth:
+        raise ReconError(f"{scan.root or 'scan'}: has no ground-truth depth to evaluate against")
+    if align not in ("none", "median"):
+        raise ReconError(f"unknown alignment {align!r} (none, median)")
+    K = scan.intrinsics.K
+    per_frame, flickers, prev = [], [], None
+    for i in range(len(scan)):
+        gt = scan.depth(i)
+        pred = load_depth_map(pred_dir, scan.frames[i].name)
+        if pred.shape != gt.shape:
+            pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
+        if align == "median":
+            pred = pred * median_scale(pred, gt)
+        m = depth_metrics(pred, gt, min_depth, max_depth)
+        if m is not None:
+            per_frame.append(m)
+        if prev is not None:
+            f = flicker(prev[0], pred, K, prev[2], scan.frames[i].camera_to_world, prev[1], gt)
+            if f is not None:
+                flickers.append(f)
+        prev = (pred, gt, scan.frames[i].camera_to_world)
+        if progress:
+            progress(i + 1, len(scan))
+    out = summarise(per_frame, flickers)
+    out.update({"min_depth": min_depth, "max_depth": max_depth, "align": align})
+    return out

@@ -1,0 +1,60 @@
+"""Small parsing helpers shared by the readers."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import ScanFormatError
+from recon.io import read_image
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+
+
+def numbered_files(folder: Path, suffixes=IMAGE_SUFFIXES) -> list[Path]:
+    """Files in `folder` with one of `suffixes`, sorted by the last number in the name (then by name)."""
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes]
+
+    def key(p: Path):
+        nums = re.findall(r"\d+", p.stem)
+        return (int(nums[-1]) if nums else -1, p.name)
+
+    return sorted(files, key=key)
+
+
+def frame_number(path: Path) -> int | None:
+    nums = re.findall(r"\d+", path.stem)
+    return int(nums[-1]) if nums else None
+
+
+def load_matrix(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """Whitespace-separated numbers of exactly `shape`; extra leading rows/cols are not accepted."""
+    try:
+        mat = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except (ValueError, OSError) as exc:
+        raise ScanFormatError(f"{path}: cannot parse matrix ({exc})") from None
+    if mat.size == shape[0] * shape[1] and mat.shape != shape:
+        mat = mat.reshape(shape)
+    if mat.shape != shape:
+        raise ScanFormatError(f"{path}: matrix has shape {mat.shape}, expected {shape[0]}x{shape[1]}")
+    return mat
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file."""
+    img = read_image(path)
+    return img.shape[1], img.shape[0]
+
+
+def require_dir(path: Path, what: str) -> Path:
+    if not path.is_dir():
+        raise ScanFormatError(f"{path}: missing {what} folder")
+    return path
+
+
+def require_same_count(a: list, b: list, what_a: str, what_b: str, where: Path) -> None:
+    if len(a) != len(b):
+        raise ScanFormatError(f"{where}: {len(a)} {what_a} but {len(b)} {what_b}")
+    if not a:
+        raise ScanFormatError(f"{where}: no {what_a} found")
