@@ -27,6 +27,8 @@ class TSDFConfig:
     depth_max: float = 4.0
     min_confidence: float | None = None  # drop predicted depth whose confidence is below this
     device: str = "auto"  # auto | cpu | cuda | an Open3D device string such as CUDA:0
+    min_weight: float = 1.0  # voxels observed fewer times are not meshed (Open3D's own default, 3, drops
+    #                         surfaces that only a few keyframes see)
     block_resolution: int = 8  # voxels per block side
     initial_blocks: int = 20000  # hash map capacity to start with; it grows as needed
 
@@ -74,6 +76,7 @@ class TSDFIntegrator:
             block_count=self.config.initial_blocks,
             device=self.device)
         self.frames_integrated = 0
+        self.frames_skipped = 0  # frames with no depth inside the range
 
     def integrate(self, depth_m: np.ndarray, rgb: np.ndarray, intrinsics: Intrinsics, camera_to_world: np.ndarray,
                   confidence: np.ndarray | None = None) -> None:
@@ -89,6 +92,9 @@ class TSDFIntegrator:
             if confidence.shape != depth.shape:
                 confidence = cv2.resize(confidence, (w, h), interpolation=cv2.INTER_NEAREST)
             depth[confidence < cfg.min_confidence] = 0.0
+        if not np.any(depth < cfg.depth_max):  # (invalid pixels are 0) nothing in range: Open3D would abort
+            self.frames_skipped += 1
+            return
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth, device=self.device))
         color_img = o3d.t.geometry.Image(o3c.Tensor(rgb.astype(np.float32) * np.float32(1 / 255), device=self.device))
         K = o3c.Tensor(intrinsics.K, o3c.float64)
@@ -101,8 +107,9 @@ class TSDFIntegrator:
     def extract_mesh(self, cleanup: MeshCleanup | None = MeshCleanup()) -> trimesh.Trimesh:
         """Marching cubes on the zero level set, as a vertex-colored trimesh (optionally cleaned)."""
         if self.frames_integrated == 0:
-            raise ReconError("no frame was integrated: nothing to mesh")
-        mesh = self.grid.extract_triangle_mesh().to_legacy()
+            raise ReconError(f"fusion produced an empty mesh: no frame had depth inside "
+                             f"[{self.config.depth_min}, {self.config.depth_max}] m")
+        mesh = self.grid.extract_triangle_mesh(weight_threshold=self.config.min_weight).to_legacy()
         vertices = np.asarray(mesh.vertices)
         faces = np.asarray(mesh.triangles)
         if len(faces) == 0:

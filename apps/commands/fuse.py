@@ -15,6 +15,8 @@ def add_fusion_args(parser):
     g.add_argument("--depth-max", type=float, default=d.depth_max, help=f"ignore depth beyond (default {d.depth_max} m)")
     g.add_argument("--min-confidence", type=float, default=None,
                    help="drop predicted depth with confidence below this (needs <name>.conf.npy files)")
+    g.add_argument("--min-weight", type=float, default=d.min_weight,
+                   help=f"mesh only voxels observed at least this many times (default {d.min_weight})")
     g.add_argument("--fusion-device", default="auto", help="auto, cpu, cuda (default auto)")
 
 
@@ -22,7 +24,8 @@ def fusion_config(args):
     from fusion.tsdf import TSDFConfig
 
     return TSDFConfig(voxel_size=args.voxel_size, trunc_voxels=args.trunc_voxels, depth_min=args.depth_min,
-                      depth_max=args.depth_max, min_confidence=args.min_confidence, device=args.fusion_device)
+                      depth_max=args.depth_max, min_confidence=args.min_confidence, min_weight=args.min_weight,
+                      device=args.fusion_device)
 
 
 def register(subparsers):

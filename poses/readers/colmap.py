@@ -16,7 +16,7 @@ from recon.geometry import world_to_camera_to_pose
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
 NAME = "colmap"
-MODEL_PLACES = (".", "sparse/0", "sparse", "colmap/sparse/0")
+MODEL_PLACES = (".", "0", "sparse/0", "sparse", "colmap/sparse/0")
 
 
 def _has_model(folder: Path) -> bool:
