@@ -85,7 +85,8 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
 
     Predictions of another size are resampled (nearest) onto the GT grid. `align='median'`
     rescales each prediction by median(gt)/median(pred), for non-metric predictions; the
-    result then says so. Temporal keys come from consecutive frames of the scan.
+    result then says so. Temporal keys come from consecutive frames of the scan;
+    `per_frame` lists each frame's abs_rel, abs and flicker (with the previous frame).
     """
     import cv2
 
@@ -97,7 +98,7 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
     if align not in ("none", "median"):
         raise ReconError(f"unknown alignment {align!r} (none, median)")
     K = scan.intrinsics.K
-    per_frame, flickers, prev = [], [], None
+    per_frame, flickers, rows, prev = [], [], [], None
     for i in range(len(scan)):
         gt = scan.depth(i)
         pred = load_depth_map(pred_dir, scan.frames[i].name)
@@ -108,13 +109,16 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
         m = depth_metrics(pred, gt, min_depth, max_depth)
         if m is not None:
             per_frame.append(m)
+        f = None
         if prev is not None:
             f = flicker(prev[0], pred, K, prev[2], scan.frames[i].camera_to_world, prev[1], gt)
             if f is not None:
                 flickers.append(f)
+        rows.append({"name": scan.frames[i].name, "abs_rel": m["abs_rel"] if m else None,
+                     "abs": m["abs"] if m else None, "flicker": f})
         prev = (pred, gt, scan.frames[i].camera_to_world)
         if progress:
             progress(i + 1, len(scan))
     out = summarise(per_frame, flickers)
-    out.update({"min_depth": min_depth, "max_depth": max_depth, "align": align})
+    out.update({"min_depth": min_depth, "max_depth": max_depth, "align": align, "per_frame": rows})
     return out

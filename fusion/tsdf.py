@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from recon.errors import ReconError
+from recon.geometry import invert_pose
 from recon.io import load_confidence_map, load_depth_map
 from recon.scan import Intrinsics, Scan
 
@@ -87,20 +88,24 @@ class TSDFIntegrator:
             intrinsics = intrinsics.resized(w, h)
         if rgb.shape[:2] != (h, w):
             rgb = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
-        depth = np.where(np.isfinite(depth_m) & (depth_m >= cfg.depth_min), depth_m, 0.0).astype(np.float32)
+        depth = depth_m.astype(np.float32, copy=True)
+        depth[~(depth >= cfg.depth_min)] = 0.0  # also zeroes NaN; beyond depth_max Open3D ignores by itself
         if confidence is not None and cfg.min_confidence is not None:
             if confidence.shape != depth.shape:
                 confidence = cv2.resize(confidence, (w, h), interpolation=cv2.INTER_NEAREST)
             depth[confidence < cfg.min_confidence] = 0.0
-        if not np.any(depth < cfg.depth_max):  # (invalid pixels are 0) nothing in range: Open3D would abort
-            self.frames_skipped += 1
-            return
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth, device=self.device))
         color_img = o3d.t.geometry.Image(o3c.Tensor(rgb.astype(np.float32) * np.float32(1 / 255), device=self.device))
         K = o3c.Tensor(intrinsics.K, o3c.float64)
-        world_to_camera = o3c.Tensor(np.linalg.inv(camera_to_world), o3c.float64)
-        blocks = self.grid.compute_unique_block_coordinates(depth_img, K, world_to_camera, 1.0, cfg.depth_max,
-                                                            cfg.trunc_voxels)
+        world_to_camera = o3c.Tensor(invert_pose(camera_to_world), o3c.float64)
+        try:
+            blocks = self.grid.compute_unique_block_coordinates(depth_img, K, world_to_camera, 1.0, cfg.depth_max,
+                                                                cfg.trunc_voxels)
+        except RuntimeError as exc:  # Open3D aborts when no pixel lies inside the depth range
+            if "No block is touched" not in str(exc):
+                raise
+            self.frames_skipped += 1
+            return
         self.grid.integrate(blocks, depth_img, color_img, K, K, world_to_camera, 1.0, cfg.depth_max, cfg.trunc_voxels)
         self.frames_integrated += 1
 

@@ -110,7 +110,7 @@ def write_nerfstudio(scan: Scan, root: Path) -> None:
         _depth_png(root / f"depth/frame_{i:05d}.png", scan.depth(i))
         frames.append({"file_path": f"images/frame_{i:05d}.png", "depth_file_path": f"depth/frame_{i:05d}.png",
                        "transform_matrix": opencv_to_opengl(f.camera_to_world).tolist()})
-    doc = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy,
+    doc = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx + 0.5, "cy": intr.cy + 0.5,
            "w": intr.width, "h": intr.height, "frames": frames}
     (root / "transforms.json").write_text(json.dumps(doc))
 

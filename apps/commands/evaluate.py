@@ -68,6 +68,8 @@ def run_depth(args):
     with progress_bar("eval depth", len(scan), quiet=args.quiet or args.json) as advance:
         result = evaluate_depth_folder(args.pred, scan, args.min_depth, args.max_depth, args.align,
                                        progress=lambda i, n: advance())
+    if not args.json:
+        result.pop("per_frame")
     _print(result, args.json)
     return 0
 

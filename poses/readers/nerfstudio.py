@@ -1,6 +1,7 @@
 """nerfstudio / NeRF `transforms.json` (Polycam, Record3D and other exporters write it too).
 
-Poses are camera-to-world with OpenGL camera axes, converted here to OpenCV axes.
+Poses are camera-to-world with OpenGL camera axes, converted here to OpenCV axes; the
+principal point follows COLMAP's convention (pixel centres at +0.5) and is shifted by -0.5.
 Intrinsics are shared (`fl_x`, `fl_y`, `cx`, `cy`, `w`, `h`, or instant-ngp's
 `camera_angle_x`) or per frame; per-frame values must agree within 1 % (ARKit
 exporters jitter them slightly) and their median is used. OpenCV distortion
@@ -44,8 +45,8 @@ def _frame_intrinsics(doc: dict, frame: dict, first_image: Path) -> tuple[float,
         fx = fy = 0.5 * float(w) / math.tan(0.5 * float(src["camera_angle_x"]))
     else:
         raise ScanFormatError(f"{FILE}: no focal length (fl_x or camera_angle_x)")
-    cx = float(src.get("cx", float(w) / 2))
-    cy = float(src.get("cy", float(h) / 2))
+    cx = float(src.get("cx", float(w) / 2)) - 0.5
+    cy = float(src.get("cy", float(h) / 2)) - 0.5
     return fx, fy, cx, cy, float(w), float(h)
 
 

@@ -1,0 +1,191 @@
+"""Batch runs: every scan of a dataset through the pipeline, on a local process pool or on Ray.
+
+One run folder per scan under the output folder, then a summary (CSV, JSON, HTML index)
+with each scan's status and metrics and their means. A scan whose report already exists
+for the same options is skipped; a scan that fails is recorded with its reason and never
+stops the others.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import html
+import io
+import json
+import logging
+import math
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Callable, Iterable
+
+from recon.errors import ReconError
+from recon.io import write_bytes_atomic, write_json_atomic
+from recon.pipeline import VIDEO_SUFFIXES, Pipeline, RunConfig
+
+log = logging.getLogger("recon")
+
+SUMMARY_KEYS = (("depth", "abs_rel"), ("depth", "a1"), ("temporal", "flicker"), ("mesh", "fscore"),
+                ("mesh", "acc"), ("mesh", "comp"), ("poses", "ate_rmse"))
+
+
+def discover_inputs(dataset: str | Path) -> list[Path]:
+    """Scans under a folder (each sub-folder a reader recognises, or a video file), or the paths in a list file."""
+    from poses.readers import detect_format
+
+    dataset = Path(dataset)
+    if dataset.is_file():
+        lines = [ln.strip() for ln in dataset.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+        paths = [(dataset.parent / ln) if not Path(ln).is_absolute() else Path(ln) for ln in lines]
+        if not paths:
+            raise ReconError(f"{dataset}: the list file names no scan")
+        return paths
+    if not dataset.is_dir():
+        raise ReconError(f"{dataset}: no such folder or list file")
+    found = []
+    for child in sorted(dataset.iterdir()):
+        if child.name.startswith("."):
+            continue
+        if child.is_file() and child.suffix.lower() in VIDEO_SUFFIXES:
+            found.append(child)
+        elif child.is_dir():
+            try:
+                detect_format(child)
+                found.append(child)
+            except ReconError:
+                log.info("batch: %s is not a scan, skipped", child)
+    if not found:
+        raise ReconError(f"{dataset}: no scan found (sub-folders in a known format, or video files)")
+    return found
+
+
+def run_one(config: RunConfig) -> dict:
+    """Run (or resume) one scan; never raises: failures come back as a record with the reason."""
+    name = Path(config.out).name
+    started = time.perf_counter()
+    try:
+        report_path = Path(config.out) / "report.json"
+        pipeline = Pipeline(config)
+        pipeline._load_state()
+        if report_path.is_file() and all(pipeline.is_current(s) for s in ("scan", "depth", "fusion", "evaluate")):
+            return {"name": name, "status": "skipped", "seconds": 0.0, "report": json.loads(report_path.read_text())}
+        report = pipeline.run()
+        return {"name": name, "status": "done", "seconds": time.perf_counter() - started, "report": report}
+    except ReconError as exc:
+        return {"name": name, "status": "failed", "seconds": time.perf_counter() - started, "error": str(exc)}
+    except Exception as exc:  # a bug in one scan's run must not take the batch down
+        last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        return {"name": name, "status": "failed", "seconds": time.perf_counter() - started, "error": last}
+
+
+def _configs(inputs: Iterable[Path], out: Path, template: RunConfig) -> list[RunConfig]:
+    names: set[str] = set()
+    configs = []
+    for path in inputs:
+        name = path.stem if path.is_file() else path.name
+        while name in names:
+            name += "_"
+        names.add(name)
+        configs.append(dataclasses.replace(template, input=str(path), out=str(out / name)))
+    return configs
+
+
+def run_local(configs: list[RunConfig], workers: int, on_result: Callable[[dict], None]) -> list[dict]:
+    """A process pool on this machine (one scan per process)."""
+    results = []
+    if workers <= 1:
+        for c in configs:
+            results.append(run_one(c))
+            on_result(results[-1])
+        return results
+    import multiprocessing
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(run_one, c) for c in configs]
+        for fut in as_completed(futures):
+            results.append(fut.result())
+            on_result(results[-1])
+    return results
+
+
+def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float, gpus_per_scan: float,
+            on_result: Callable[[dict], None]) -> list[dict]:
+    """Ray tasks with CPU/GPU requests, on a local Ray instance or the cluster at `address`."""
+    try:
+        import ray
+    except ImportError:
+        raise ReconError("--engine ray needs Ray: pip install 'recon-est[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+    try:
+        task = ray.remote(num_cpus=cpus_per_scan, num_gpus=gpus_per_scan, max_retries=0)(run_one)
+        pending = [task.remote(c) for c in configs]
+        results = []
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            results.append(ray.get(done[0]))
+            on_result(results[-1])
+        return results
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def write_summary(results: list[dict], out: Path) -> dict:
+    """summary.json, summary.csv and index.html across scans, with means over the scans that have each figure."""
+    rows = []
+    for r in sorted(results, key=lambda r: r["name"]):
+        row = {"name": r["name"], "status": r["status"], "seconds": round(r["seconds"], 2), "error": r.get("error", "")}
+        report = r.get("report", {})
+        for section, key in SUMMARY_KEYS:
+            row[f"{section}.{key}"] = report.get(section, {}).get(key)
+        rows.append(row)
+    means = {}
+    for section, key in SUMMARY_KEYS:
+        vals = [r[f"{section}.{key}"] for r in rows if isinstance(r[f"{section}.{key}"], (int, float))
+                and math.isfinite(r[f"{section}.{key}"])]
+        means[f"{section}.{key}"] = sum(vals) / len(vals) if vals else None
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed")}
+    summary = {"scans": rows, "mean": means, "counts": counts}
+    write_json_atomic(out / "summary.json", summary)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["name"])
+    writer.writeheader()
+    writer.writerows(rows)
+    write_bytes_atomic(out / "summary.csv", buf.getvalue().encode())
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in (rows[0] if rows else {}))
+    body = []
+    for r in rows:
+        cells = []
+        for k, v in r.items():
+            text = f"{v:.4f}" if isinstance(v, float) else html.escape(str(v if v is not None else ""))
+            if k == "name" and r["status"] != "failed":
+                text = f"<a href='{html.escape(r['name'])}/report.html'>{text}</a>"
+            cells.append(f"<td>{text}</td>")
+        body.append(f"<tr>{''.join(cells)}</tr>")
+    mean_cells = "".join(f"<td>{'' if v is None else f'{v:.4f}'}</td>" for v in means.values())
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>Batch summary</title><style>"
+            f"body{{font-family:sans-serif}} td,th{{border:1px solid #ddd;padding:2px 6px;font-size:13px}}"
+            f"table{{border-collapse:collapse}}</style></head><body><h1>Batch summary</h1>"
+            f"<p>{counts['done']} done, {counts['skipped']} skipped (already done), {counts['failed']} failed</p>"
+            f"<table><tr>{head}</tr>{''.join(body)}</table><h2>Means</h2><table><tr>"
+            f"{''.join(f'<th>{html.escape(k)}</th>' for k in means)}</tr><tr>{mean_cells}</tr></table></body></html>")
+    write_bytes_atomic(out / "index.html", page.encode())
+    return summary
+
+
+def run_batch(dataset: str | Path, out: str | Path, template: RunConfig, engine: str = "local", workers: int = 1,
+              address: str | None = None, cpus_per_scan: float = 1.0, gpus_per_scan: float = 0.0,
+              on_result: Callable[[dict], None] = lambda r: None) -> dict:
+    out = Path(out)
+    configs = _configs(discover_inputs(dataset), out, template)
+    out.mkdir(parents=True, exist_ok=True)
+    if engine == "local":
+        results = run_local(configs, workers, on_result)
+    elif engine == "ray":
+        results = run_ray(configs, address, cpus_per_scan, gpus_per_scan, on_result)
+    else:
+        raise ReconError(f"unknown engine {engine!r} (local, ray)")
+    return write_summary(results, out)
