@@ -17,6 +17,14 @@ if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0; then
     fi
 fi
 
+# Chromium lets the tests open report.html in a real headless browser; optional (the test skips without it).
+if ! command -v chromium >/dev/null && [ -z "${RECON_SKIP_BROWSER:-}" ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "setup: installing chromium for the report test (RECON_SKIP_BROWSER=1 skips this)"
+    { DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1 \
+      || { apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1; }; } \
+        || echo "setup: chromium could not be installed; the browser test will be skipped"
+fi
+
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 PIP=".venv/bin/python -m pip"
 $PIP install -q --upgrade pip >/dev/null

@@ -7,6 +7,10 @@ import importlib
 
 BENCHMARKS = {
     "fusion": ("fusion.bench", "TSDF fusion throughput against a bare Open3D loop; mesh evaluation time"),
+    "synth": ("recon.synthetic.bench", "synthetic room rendering frames/s against bare Open3D ray casting"),
+    "pipeline": ("recon.bench_pipeline", "end-to-end time and peak memory per stage (demo, 7-Scenes x100)"),
+    "depth": ("depth.bench", "EST depth network: params, MACs, peak memory, s/frame (ESTM) against plane sweep"),
+    "poses": ("poses.bench", "SfM on 200 7-Scenes frames at 640x480: time per step, global vs incremental mapper"),
 }
 
 

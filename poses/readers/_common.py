@@ -8,6 +8,7 @@ import numpy as np
 
 from recon.errors import ScanFormatError
 from recon.io import read_image
+from recon.scan import Frame
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 
@@ -58,3 +59,17 @@ def require_same_count(a: list, b: list, what_a: str, what_b: str, where: Path) 
         raise ScanFormatError(f"{where}: {len(a)} {what_a} but {len(b)} {what_b}")
     if not a:
         raise ScanFormatError(f"{where}: no {what_a} found")
+
+
+def numbered_frames(folder: Path, images: list[Path], poses: list[np.ndarray]) -> list[Frame]:
+    """Frames from parallel lists of images and poses, with `depth/` PNGs matched by order when present.
+
+    Names come from the number in each image's file name (zero-padded), so outputs line up with the input.
+    """
+    depth_dir = folder / "depth"
+    depths = numbered_files(depth_dir, (".png",)) if depth_dir.is_dir() else []
+    if depths and len(depths) != len(images):
+        raise ScanFormatError(f"{folder}: {len(images)} images but {len(depths)} depth maps")
+    return [Frame(name=f"{frame_number(img) if frame_number(img) is not None else i:06d}", camera_to_world=pose,
+                  image_path=img, depth_path=depths[i] if depths else None, source_index=i)
+            for i, (img, pose) in enumerate(zip(images, poses))]

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import ScanFormatError
-from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
+from recon.scan import Intrinsics, Scan, ScanMetadata
 
-from ._common import frame_number, image_size, numbered_files, require_same_count
+from ._common import image_size, numbered_files, numbered_frames, require_same_count
 
 NAME = "open3d"
 DEFAULT_K = (525.0, 525.0, 319.5, 239.5)
@@ -61,13 +61,7 @@ def read(path: Path) -> Scan:
     log = _log_file(path)
     poses = read_trajectory_log(log)
     require_same_count(images, poses, "images", f"poses in {log.name}", path)
-    depth_dir = path / "depth"
-    depths = numbered_files(depth_dir, (".png",)) if depth_dir.is_dir() else []
-    if depths and len(depths) != len(images):
-        raise ScanFormatError(f"{path}: {len(images)} images but {len(depths)} depth maps")
     w, h = image_size(images[0])
-    frames = [Frame(name=f"{frame_number(img) if frame_number(img) is not None else i:06d}", camera_to_world=pose,
-                    image_path=img, depth_path=depths[i] if depths else None, source_index=i)
-              for i, (img, pose) in enumerate(zip(images, poses))]
+    frames = numbered_frames(path, images, poses)
     return Scan(Intrinsics(*_intrinsics(path), w, h), frames,
                 ScanMetadata(metric_scale=True, source_format=NAME), root=path)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import ScanFormatError
-from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
+from recon.scan import Intrinsics, Scan, ScanMetadata
 
-from ._common import frame_number, image_size, load_matrix, numbered_files, require_dir, require_same_count
+from ._common import image_size, load_matrix, numbered_files, numbered_frames, require_dir, require_same_count
 
 NAME = "simplerecon"
 
@@ -30,12 +30,6 @@ def read(path: Path) -> Scan:
     poses = list(rows.reshape(-1, 4, 4))
     require_same_count(images, poses, "images", "poses", path)
     K = load_matrix(path / "K.txt", (3, 3))
-    depth_dir = path / "depth"
-    depths = numbered_files(depth_dir, (".png",)) if depth_dir.is_dir() else []
-    if depths and len(depths) != len(images):
-        raise ScanFormatError(f"{path}: {len(images)} images but {len(depths)} depth maps")
     w, h = image_size(images[0])
-    frames = [Frame(name=f"{frame_number(img) if frame_number(img) is not None else i:06d}", camera_to_world=pose,
-                    image_path=img, depth_path=depths[i] if depths else None, source_index=i)
-              for i, (img, pose) in enumerate(zip(images, poses))]
+    frames = numbered_frames(path, images, poses)
     return Scan(Intrinsics.from_K(K, w, h), frames, ScanMetadata(metric_scale=True, source_format=NAME), root=path)

@@ -1,0 +1,62 @@
+"""`recon batch`: one folder per scan, a summary, resume, a broken scan recorded and not fatal; Ray for real."""
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from apps.batch import run_batch
+from recon.pipeline import RunConfig
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    from recon.synthetic import SynthConfig, write_synthetic_scan
+
+    root = tmp_path_factory.mktemp("dataset")
+    for seed in (11, 12):
+        write_synthetic_scan(SynthConfig(seed=seed, frames=24, width=96, height=72), root / f"room{seed}")
+    broken = root / "broken"
+    shutil.copytree(root / "room11", broken)
+    (broken / "images" / sorted(p.name for p in (broken / "images").iterdir())[3]).write_bytes(b"not an image")
+    (root / "notes").mkdir()  # not a scan: ignored
+    return root
+
+
+def template():
+    return RunConfig(input="", out="", mode="planesweep", keyframe_threshold=0.05)
+
+
+def test_local_batch_summary_resume_and_failure(dataset, tmp_path):
+    seen = []
+    summary = run_batch(dataset, tmp_path, template(), engine="local", workers=2, on_result=seen.append)
+    assert summary["counts"] == {"done": 2, "skipped": 0, "failed": 1}
+    failed = next(r for r in summary["scans"] if r["status"] == "failed")
+    assert failed["name"] == "broken" and "unreadable image" in failed["error"]
+    done = [r for r in summary["scans"] if r["status"] == "done"]
+    assert all(r["mesh.fscore"] is not None for r in done)
+    assert summary["mean"]["mesh.fscore"] == pytest.approx(sum(r["mesh.fscore"] for r in done) / 2)
+    for name in ("summary.csv", "summary.json", "index.html", "room11/report.html", "room12/mesh.ply"):
+        assert (tmp_path / name).is_file(), name
+    assert "broken" in (tmp_path / "summary.csv").read_text()
+    again = run_batch(dataset, tmp_path, template(), engine="local", workers=1)
+    assert again["counts"] == {"done": 0, "skipped": 2, "failed": 1}
+
+
+def test_ray_batch(dataset, tmp_path):
+    pytest.importorskip("ray")
+    summary = run_batch(dataset, tmp_path, template(), engine="ray", cpus_per_scan=1)
+    assert summary["counts"]["done"] == 2 and summary["counts"]["failed"] == 1
+    report = json.loads((tmp_path / "room12" / "report.json").read_text())
+    assert report["mesh"]["fscore"] > 0.2
+
+
+def test_list_file_and_bad_dataset(dataset, tmp_path):
+    from recon.errors import ReconError
+
+    listing = tmp_path / "scans.txt"
+    listing.write_text(f"# two rooms\n{dataset / 'room11'}\n")
+    summary = run_batch(listing, tmp_path / "out", template())
+    assert summary["counts"]["done"] == 1
+    with pytest.raises(ReconError, match="no scan found"):
+        run_batch(tmp_path / "out" / "room11" / "depth", tmp_path / "x", template())
