@@ -13,7 +13,7 @@ import sys
 from recon.errors import ReconError
 
 # Modules under apps.commands that add subcommands, in help order.
-COMMAND_MODULES = ["info", "convert", "fuse", "evaluate", "bench"]
+COMMAND_MODULES = ["run", "demo", "batch", "info", "convert", "poses", "depth", "train", "fuse", "evaluate", "bench", "synth"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconError
-from recon.geometry import project, transform_points, invert_pose
+from recon.geometry import project
 from recon.io import atomic_path, load_depth_map, save_depth_map
 from recon.scan import Intrinsics, load_scan, save_scan
 

@@ -12,10 +12,10 @@ from pathlib import Path
 from recon.errors import ReconError
 from recon.scan import Scan
 
-from . import canonical, colmap, nerfstudio, open3d_log, scannet, sevenscenes, simplerecon, tum
+from . import canonical, colmap, nerfstudio, open3d_log, scannet, sevenscenes, simplerecon, stray, tum
 
 # Order matters for detection: the most specific layouts first.
-READERS = [canonical, sevenscenes, scannet, tum, open3d_log, simplerecon, colmap, nerfstudio]
+READERS = [canonical, sevenscenes, scannet, tum, open3d_log, simplerecon, stray, colmap, nerfstudio]
 FORMATS = [r.NAME for r in READERS]
 
 

@@ -50,6 +50,41 @@ class Pose2D:
         return Pose2D(float(x), float(y), float(z), self.yaw + local.yaw)
 
 
+@dataclass(frozen=True)
+class Solid:
+    """A closed part (a box, or a vertical cylinder when `radius` > 0) where it was placed.
+
+    Kept beside the triangles so tests can check that no two parts of a scene overlap.
+    """
+
+    pose: Pose2D
+    lo: tuple[float, float, float]  # local bounds (a cylinder: its bounding box)
+    hi: tuple[float, float, float]
+    radius: float = 0.0
+
+    def probe_points(self) -> np.ndarray:
+        """World points on the part's surface: corners, edge midpoints and face centres (rims for cylinders)."""
+        lo, hi = np.array(self.lo), np.array(self.hi)
+        if self.radius > 0:
+            angles = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+            ring = np.stack([np.cos(angles), np.sin(angles)], axis=1) * self.radius
+            local = np.concatenate([np.column_stack([ring, np.full(16, z)]) for z in (lo[2], (lo[2] + hi[2]) / 2, hi[2])]
+                                   + [[[0, 0, lo[2]], [0, 0, hi[2]]]])
+        else:
+            grid = np.stack(np.meshgrid(*[[lo[k], (lo[k] + hi[k]) / 2, hi[k]] for k in range(3)], indexing="ij"), -1)
+            local = grid.reshape(-1, 3)
+        return self.pose.apply(local)
+
+    def contains(self, world_points: np.ndarray, margin: float) -> np.ndarray:
+        """Which points lie inside the part by more than `margin` (touching does not count)."""
+        local = (world_points - np.array([self.pose.x, self.pose.y, self.pose.z])) @ self.pose.rotation
+        lo, hi = np.array(self.lo) + margin, np.array(self.hi) - margin
+        inside_z = (local[:, 2] > lo[2]) & (local[:, 2] < hi[2])
+        if self.radius > 0:
+            return inside_z & (np.hypot(local[:, 0], local[:, 1]) < self.radius - margin)
+        return inside_z & np.all((local[:, :2] > lo[:2]) & (local[:, :2] < hi[:2]), axis=1)
+
+
 def _face_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Right and down directions of a face as seen from its front (pictures read upright)."""
     if abs(normal[2]) > 0.9:
@@ -67,6 +102,7 @@ class MeshBuilder:
         self._materials: list[int] = []
         self.materials: list[Material] = []
         self._material_ids: dict[Material, int] = {}
+        self.solids: list[Solid] = []
 
     def material_id(self, material: Material) -> int:
         if material not in self._material_ids:
@@ -118,6 +154,7 @@ class MeshBuilder:
         on the floor), `decal_faces` puts a picture material on some (a print on a box's front).
         """
         lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        self.solids.append(Solid(pose, tuple(map(float, lo)), tuple(map(float, hi))))
         for axis in range(3):
             for sign, name in ((1, f"+{'xyz'[axis]}"), (-1, f"-{'xyz'[axis]}")):
                 if name in skip:
@@ -136,6 +173,7 @@ class MeshBuilder:
                      segments: int = 20, top: bool = True, bottom: bool = False,
                      cap_material: Material | None = None) -> None:
         """Vertical cylinder around the local z axis; sides are flat facets with outward normals."""
+        self.solids.append(Solid(pose, (-radius, -radius, z0), (radius, radius, z1), radius))
         angles = np.linspace(0, 2 * np.pi, segments + 1)
         ring = np.stack([np.cos(angles), np.sin(angles)], axis=1) * radius
         mid = self.material_id(material)
@@ -168,6 +206,3 @@ class MeshBuilder:
         return (np.array(self._triangles, dtype=np.float64).reshape(-1, 3, 3),
                 np.array(self._uvs, dtype=np.float64).reshape(-1, 3, 2),
                 np.array(self._materials, dtype=np.int32))
-
-    def __len__(self) -> int:
-        return len(self._triangles)

@@ -26,10 +26,6 @@ class TextureSpec:
     tile_m: float  # physical size of one repeat (0 for decals, which span the face once)
     aspect: float = 1.0  # width / height of the original picture (decals keep it on the face)
 
-    @property
-    def is_decal(self) -> bool:
-        return self.tile_m <= 0
-
 
 def srgb_to_linear(x: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] -> linear light."""
