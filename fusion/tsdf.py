@@ -28,12 +28,14 @@ class TSDFConfig:
     depth_max: float = 4.0
     min_confidence: float | None = None  # drop predicted depth whose confidence is below this
     device: str = "auto"  # auto | cpu | cuda | an Open3D device string such as CUDA:0
-    min_weight: float = 1.0  # voxels observed fewer times are not meshed (Open3D's own default, 3, drops
-    #                         surfaces that only a few keyframes see)
+    min_weight: float = 0.5  # voxels must weigh more than this to be meshed; Open3D's own default (3) drops
+    #                         surfaces that only a few keyframes see, and 1 drops those seen once
     block_resolution: int = 8  # voxels per block side
     initial_blocks: int = 20000  # hash map capacity to start with; it grows as needed
 
     def validate(self) -> "TSDFConfig":
+        for name in ("voxel_size", "trunc_voxels", "depth_min", "depth_max", "min_weight"):
+            setattr(self, name, float(getattr(self, name)))  # Open3D's bindings refuse ints here
         if not self.voxel_size > 0 or not self.trunc_voxels > 0:
             raise ReconError(f"voxel size and truncation must be positive (got {self.voxel_size}, {self.trunc_voxels})")
         if not 0 <= self.depth_min < self.depth_max:

@@ -30,7 +30,7 @@ def room(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def random_weights(tmp_path_factory) -> Path:
     """An untrained compact network: the ESTM path end to end without shipped weights."""
-    from depth.checkpoint import build_model, save_checkpoint  # noqa: F401
+    from depth.checkpoint import save_checkpoint
     from depth.config import get_config
     from depth.model import ESTNet
 

@@ -36,6 +36,8 @@ def register(subparsers):
     add_selection_args(m)
     m.add_argument("--points", type=int, default=200_000, help="points sampled per mesh (default 200000)")
     m.add_argument("--threshold", type=float, default=0.05, help="distance threshold in metres (default 0.05)")
+    m.add_argument("--occlusion-margin", type=float, default=0.05,
+                   help="with --scan: points up to this far behind the GT depth still count as seen (default 0.05 m)")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--json", action="store_true")
     m.set_defaults(func=run_mesh)
@@ -81,7 +83,8 @@ def run_mesh(args):
     if args.points < 1 or args.threshold <= 0:
         raise ReconError("--points must be >= 1 and --threshold > 0")
     scan = open_selected_scan(args.scan, args) if args.scan else None
-    config = MeshEvalConfig(n_points=args.points, threshold=args.threshold, seed=args.seed)
+    config = MeshEvalConfig(n_points=args.points, threshold=args.threshold, seed=args.seed,
+                            occlusion_margin=args.occlusion_margin)
     _print(mesh_metrics(args.pred, args.gt, scan, config), args.json)
     return 0
 

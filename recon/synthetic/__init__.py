@@ -1,0 +1,18 @@
+"""Synthetic rooms with exact ground truth: procedural scenes, handheld camera paths, CPU rendering.
+
+Used as training data for the depth network (`iter_training_scans`), as end-to-end test
+fixtures and as demo input (`render_scan`, `write_synthetic_scan`). See docs/synthetic.md.
+"""
+from .effects import SensorEffects
+from .generate import (SynthConfig, camera_intrinsics, iter_training_scans, render_scan, scene_mesh,
+                       write_synthetic_scan)
+from .preview import contact_sheet
+from .render import Renderer
+from .scene import Scene, SceneConfig, generate_scene
+from .textures import TextureLibrary, texture_library
+from .trajectory import TrajectoryConfig, handheld_trajectory, pose_distance, select_keyframes
+
+__all__ = ["SensorEffects", "SynthConfig", "camera_intrinsics", "iter_training_scans", "render_scan", "scene_mesh",
+           "write_synthetic_scan", "contact_sheet", "Renderer", "Scene", "SceneConfig", "generate_scene",
+           "TextureLibrary", "texture_library", "TrajectoryConfig", "handheld_trajectory", "pose_distance",
+           "select_keyframes"]
