@@ -45,4 +45,5 @@ def pose_metrics(pred: Scan, gt: Scan, with_scale: bool = True) -> dict[str, flo
     path_length = float(np.linalg.norm(np.diff(dst, axis=0), axis=1).sum())
     return {"ate_rmse": float(np.sqrt(np.mean(err ** 2))), "ate_median": float(np.median(err)),
             "registered": len(pairs) / len(gt), "frames_matched": len(pairs), "scale": scale,
-            "trajectory_length": path_length}
+            "trajectory_length": path_length,
+            "alignment": {"scale": scale, "rotation": R.tolist(), "translation": t.tolist()}}

@@ -44,7 +44,8 @@ class RunConfig:
     out: str
     format: str = "auto"
     poses: str = "auto"  # auto: the input's own poses when it has them, SfM otherwise; colmap: always SfM
-    mapper: str = "global"  # SfM mapper when SfM runs
+    mapper: str = "incremental"  # SfM mapper when SfM runs (the other one is the fallback)
+    gt_poses: str | None = None  # a scan whose poses score SfM's (a recorded input serves by itself)
     start: int = 0
     stride: int = 1
     max_frames: int | None = None
@@ -66,10 +67,10 @@ class RunConfig:
         """The options a stage's outputs depend on (device choice is not among them)."""
         keys = {
             "scan": ("input", "format", "poses", "mapper", "start", "stride", "max_frames"),
+            "evaluate": ("eval_max_depth", "gt_poses"),
             "depth": ("keyframe_threshold", "mode", "weights", "window", "memory_size", "depth_range"),
             "fusion": ("voxel_size", "fusion_depth_max", "min_confidence"),
             "reference": ("gt_mesh", "voxel_size", "fusion_depth_max"),
-            "evaluate": ("eval_max_depth",),
             "report": ("report_frames",),
         }[stage]
         return {k: getattr(self, k) for k in keys}
@@ -249,11 +250,31 @@ class Pipeline:
             return True  # a plain image folder
 
     def _sfm_scan(self, src: Path):
-        from poses.sfm import SfMOptions, reconstruct
+        from poses.ingest import IngestConfig
+        from poses.sfm import PosesConfig, SfMConfig, estimate_poses
 
         cfg = self.config
-        options = SfMOptions(mapper=cfg.mapper, stride=cfg.stride, max_frames=cfg.max_frames)
-        return reconstruct(src, self.out / "sfm", options, scan_out=self.out / "scan")
+        if cfg.start:
+            raise ReconError("--start is not supported when poses come from SfM (trim the video instead)")
+        config = PosesConfig(ingest=IngestConfig(stride=cfg.stride, max_frames=cfg.max_frames),
+                             sfm=SfMConfig(mapper=cfg.mapper))
+        scan, _ = estimate_poses(src, self.out / "scan", config)
+        return scan
+
+    def gt_poses_scan(self):
+        """Ground-truth poses for an SfM run: --gt-poses, or the recorded scan SfM ignored the poses of."""
+        from poses.readers import detect_format, open_scan
+
+        if self.config.gt_poses:
+            return open_scan(self.config.gt_poses)
+        src = Path(self.config.input)
+        if self.config.poses == "colmap" and src.is_dir():
+            try:
+                detect_format(src)
+            except ReconError:
+                return None
+            return open_scan(src)
+        return None
 
     def stage_depth(self) -> dict:
         from depth.inference import DepthOptions, estimate_depth
@@ -320,19 +341,32 @@ class Pipeline:
                                                   "coverage", "frames", "min_depth", "max_depth", "align")}
             metrics["temporal"] = {k: d[k] for k in ("mae_mean", "mae_std", "flicker")}
             metrics["depth_per_frame"] = d["per_frame"]
+        gt_scan = self.gt_poses_scan() if self.poses_from_sfm else None
+        alignment = None
+        if gt_scan is not None:
+            from poses.evaluate import pose_metrics
+
+            p = pose_metrics(scan, gt_scan)
+            metrics["poses"] = {"ate_rmse": p["ate_rmse"], "registered": p["registered"],
+                                "metric_scale": scan.metadata.metric_scale, "sim3_scale": p["scale"]}
+            alignment = p["alignment"]
         reference = self.out / "reference.ply"
         if reference.is_file():
-            metrics["mesh"] = mesh_metrics(self.out / "mesh.ply", reference, scan=scan)
-        gt_poses = scan.metadata.extra.get("gt_poses_scan")
-        if gt_poses:
-            from poses.evaluate import pose_metrics
-            from poses.readers import open_scan
-
-            p = pose_metrics(scan, open_scan(gt_poses))
-            metrics["poses"] = {"ate_rmse": p["ate_rmse"], "registered": p["registered"],
-                                "metric_scale": scan.metadata.metric_scale}
+            mesh = self.out / "mesh.ply"
+            if not scan.metadata.metric_scale and alignment is None:
+                metrics["mesh_skipped"] = ("the mesh's scale is unknown and no ground-truth poses align it "
+                                           "(pass --gt-poses SCAN)")
+            else:
+                if not scan.metadata.metric_scale:
+                    mesh = aligned_mesh(mesh, alignment)
+                    metrics["mesh_alignment"] = "Sim(3) from the camera trajectory to the ground-truth poses"
+                metrics["mesh"] = mesh_metrics(mesh, reference, scan=gt_scan if gt_scan is not None else scan)
         write_json_atomic(self.out / "metrics.json", metrics)
         return {k: v for k, v in metrics.items() if k in ("depth", "mesh", "poses")}
+
+    @property
+    def poses_from_sfm(self) -> bool:
+        return (self.out / "scan" / "poses_report.json").is_file()
 
     def stage_report(self) -> dict:
         from .report import write_report
@@ -353,3 +387,15 @@ class Pipeline:
         report["stages"] = {k: v.info for k, v in self.records.items()}
         report["config"] = dataclasses.asdict(self.config)
         return report
+
+
+def aligned_mesh(mesh_path: Path, alignment: dict):
+    """The predicted mesh moved into the ground truth's frame by a Sim(3) {scale, rotation, translation}."""
+    import numpy as np
+
+    from fusion.mesh import load_mesh
+
+    mesh = load_mesh(mesh_path)
+    mesh.vertices = alignment["scale"] * np.asarray(mesh.vertices) @ np.asarray(alignment["rotation"]).T \
+        + np.asarray(alignment["translation"])
+    return mesh

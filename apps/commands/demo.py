@@ -65,5 +65,7 @@ def run(args):
         source = example
     config = config_from_args(args, str(source), args.out)
     config.gt_mesh = config.gt_mesh or str(example / "gt_mesh.ply")
+    if args.colmap:
+        config.gt_poses = config.gt_poses or str(example)
     execute(config, args.force, args.quiet)
     return 0

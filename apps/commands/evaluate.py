@@ -95,6 +95,8 @@ def run_poses(args):
 
     pred = open_scan(args.pred)
     result = pose_metrics(pred, open_scan(args.gt), with_scale=not args.no_scale)
+    if not args.json:
+        result.pop("alignment")
     result["metric_scale"] = pred.metadata.metric_scale
     _print(result, args.json)
     return 0

@@ -14,7 +14,9 @@ def add_pipeline_args(p, with_input: bool = True) -> None:
     g = p.add_argument_group("poses")
     g.add_argument("--poses", choices=["auto", "supplied", "colmap"], default="auto",
                    help="auto: the input's own poses when it has them, else SfM; colmap: always SfM")
-    g.add_argument("--mapper", choices=["global", "incremental"], default="global", help="SfM mapper")
+    g.add_argument("--mapper", choices=["incremental", "global"], default="incremental",
+                   help="SfM mapper (the other one is the fallback)")
+    g.add_argument("--gt-poses", default=None, help="scan whose poses score SfM's (frames matched by name)")
     g = p.add_argument_group("depth")
     g.add_argument("--mode", choices=["estm", "joint", "independent", "planesweep"], default="estm")
     g.add_argument("--weights", default=None, help="network weights: a shipped name or a checkpoint path "
@@ -54,7 +56,7 @@ def config_from_args(args, input_path: str, out: str):
         keyframe_threshold=args.keyframe_threshold, mode=args.mode, weights=args.weights, window=args.window,
         memory_size=args.memory, depth_range=tuple(args.depth_range) if args.depth_range else None,
         device=args.device, voxel_size=args.voxel_size, fusion_depth_max=args.depth_max,
-        min_confidence=args.min_confidence, gt_mesh=args.gt_mesh)
+        min_confidence=args.min_confidence, gt_mesh=args.gt_mesh, gt_poses=args.gt_poses)
 
 
 def execute(config, force, quiet: bool) -> dict:

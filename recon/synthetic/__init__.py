@@ -10,9 +10,8 @@ from .preview import contact_sheet
 from .render import Renderer
 from .scene import Scene, SceneConfig, generate_scene
 from .textures import TextureLibrary, texture_library
-from .trajectory import TrajectoryConfig, handheld_trajectory, pose_distance, select_keyframes
+from .trajectory import TrajectoryConfig, handheld_trajectory
 
 __all__ = ["SensorEffects", "SynthConfig", "camera_intrinsics", "iter_training_scans", "render_scan", "scene_mesh",
            "write_synthetic_scan", "contact_sheet", "Renderer", "Scene", "SceneConfig", "generate_scene",
-           "TextureLibrary", "texture_library", "TrajectoryConfig", "handheld_trajectory", "pose_distance",
-           "select_keyframes"]
+           "TextureLibrary", "texture_library", "TrajectoryConfig", "handheld_trajectory"]

@@ -25,13 +25,14 @@ import trimesh
 from recon import io as rio
 from recon.errors import ReconError
 from recon.geometry import opencv_to_opengl
+from recon.keyframes import KeyframeConfig, select_keyframes
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata, save_scan
 
 from .effects import SensorEffects, apply_image_effects, camera_gains, image_motion_px
 from .render import Renderer
 from .scene import Scene, SceneConfig, generate_scene
 from .textures import TextureLibrary, linear_to_srgb, texture_library
-from .trajectory import TrajectoryConfig, handheld_trajectory, select_keyframes
+from .trajectory import TrajectoryConfig, handheld_trajectory
 
 MAX_IMAGE_SIDE = 4096
 MIN_IMAGE_SIDE = 16
@@ -243,7 +244,7 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
         walk_frames = int(clip_frames * clips_per_scene * 10 * max(1.0, keyframe_distance / 0.1))
         poses = handheld_trajectory(room.free_space, walk_frames, fps, np.random.default_rng([scene_seed, 4]),
                                     trajectory, scene.camera_clearance_m)
-        keyframes = select_keyframes(poses, keyframe_distance)
+        keyframes = select_keyframes(poses, KeyframeConfig(min_pose_distance=keyframe_distance))
         effects_rng = np.random.default_rng([scene_seed, 5])
         for clip in range(min(clips_per_scene, len(keyframes) // clip_frames)):
             indices = keyframes[clip * clip_frames:(clip + 1) * clip_frames]

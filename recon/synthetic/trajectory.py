@@ -181,18 +181,3 @@ def handheld_trajectory(free: FreeSpace, frames: int, fps: float, rng: np.random
     poses[:, :2, 3] = xy
     poses[:, 2, 3] = height
     return poses
-
-
-def pose_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """DeepVideoMVS / SimpleRecon keyframe distance: sqrt(|dt|^2 + 2/3 * trace(I - dR))."""
-    rel = np.linalg.inv(a) @ b
-    return float(np.sqrt(np.sum(rel[:3, 3] ** 2) + 2.0 / 3.0 * max(0.0, np.trace(np.eye(3) - rel[:3, :3]))))
-
-
-def select_keyframes(poses: np.ndarray, min_distance: float) -> list[int]:
-    """Indices of frames where the camera moved at least `min_distance` since the previous keyframe."""
-    keep = [0]
-    for i in range(1, len(poses)):
-        if pose_distance(poses[keep[-1]], poses[i]) >= min_distance:
-            keep.append(i)
-    return keep
