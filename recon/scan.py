@@ -151,6 +151,9 @@ class Scan:
     root: Path | None = None
     distortion: np.ndarray | None = None  # OpenCV (k1, k2, p1, p2[, k3...]) of the stored images
     output_size: tuple[int, int] | None = None  # (width, height) handed out; None = stored size
+    # Camera of the stored depth maps when it is not the colour camera (Kinect-style sensors): same optical
+    # centre and orientation, other focal length / principal point / size. Depth is resampled onto the colour camera.
+    depth_intrinsics: Intrinsics | None = None
 
     # -- shape -------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -224,9 +227,11 @@ class Scan:
         else:
             return None
         src = self.source_intrinsics
-        if d.shape != (src.height, src.width):
-            # Some sensors store depth at another resolution than color; sample it onto the color grid.
-            d = cv2.resize(d, (src.width, src.height), interpolation=cv2.INTER_NEAREST)
+        if self.depth_intrinsics is not None:
+            d = resample_depth(d, self.depth_intrinsics, src)
+        elif d.shape != (src.height, src.width):
+            raise ReconError(f"{f.depth_path or f.name}: depth is {d.shape[1]}x{d.shape[0]} but images are "
+                             f"{src.width}x{src.height}, and the scan gives no depth camera intrinsics")
         d = self._undistort(d, cv2.INTER_NEAREST)
         return self._resize(d, cv2.INTER_NEAREST)
 
@@ -263,6 +268,24 @@ class Scan:
                 raise ReconError(f"{self.root or 'scan'}: duplicate frame name {f.name}")
             seen.add(f.name)
         return self
+
+
+def resample_depth(depth_m: np.ndarray, depth_camera: Intrinsics, color_camera: Intrinsics) -> np.ndarray:
+    """Depth seen by `depth_camera` -> the same depth on `color_camera`'s pixel grid.
+
+    Both cameras share optical centre and orientation, so a colour pixel's ray meets the depth image at
+    a scaled position and z is unchanged; nearest sampling keeps invalid (0) pixels from blending in.
+    (H_d, W_d) -> (H_c, W_c); colour pixels outside the depth camera's view get 0.
+    """
+    if depth_m.shape != (depth_camera.height, depth_camera.width):
+        raise ReconError(f"depth map is {depth_m.shape[1]}x{depth_m.shape[0]}, its camera says "
+                         f"{depth_camera.width}x{depth_camera.height}")
+    u = np.arange(color_camera.width, dtype=np.float32)
+    v = np.arange(color_camera.height, dtype=np.float32)
+    map_u = (u - color_camera.cx) * np.float32(depth_camera.fx / color_camera.fx) + np.float32(depth_camera.cx)
+    map_v = (v - color_camera.cy) * np.float32(depth_camera.fy / color_camera.fy) + np.float32(depth_camera.cy)
+    map_u, map_v = np.meshgrid(map_u, map_v)
+    return cv2.remap(depth_m, map_u, map_v, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 # -- canonical folder ------------------------------------------------------------------------

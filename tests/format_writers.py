@@ -24,7 +24,8 @@ def _matrix(path: Path, m: np.ndarray) -> None:
 
 
 def write_7scenes(scan: Scan, root: Path) -> None:
-    _matrix(root / "camera-intrinsics.txt", scan.intrinsics.K)
+    _matrix(root / "camera-intrinsics.txt", scan.intrinsics.K)  # the depth sensor's
+    _matrix(root / "color-intrinsics.txt", scan.intrinsics.K)  # here the same camera
     for i, f in enumerate(scan.frames):
         write_image(root / f"frame-{i:06d}.color.png", scan.image(i))
         _depth_png(root / f"frame-{i:06d}.depth.png", scan.depth(i))

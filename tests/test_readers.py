@@ -1,6 +1,7 @@
 """Every reader returns the same canonical scan from its own layout, and real sequences reproject."""
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -81,9 +82,32 @@ def test_nerfstudio_distortion_is_undone(reference, tmp_path):
     assert err_fixed < 0.3 * err_raw
 
 
+def test_depth_camera_resampled_onto_color_camera(tmp_path):
+    """Kinect-style: depth from a narrower, smaller camera at the same centre lands on the colour grid exactly."""
+    from box_room import room_depth
+    from recon.scan import Intrinsics
+
+    color = Intrinsics(52.5, 52.5, 31.5, 23.5, 64, 48)
+    depth_cam = Intrinsics(47.0, 47.0, 25.0, 19.0, 50, 40)
+    ref = box_room_scan(16, 64, 48)
+    WRITERS["7scenes"](ref, tmp_path)
+    np.savetxt(tmp_path / "color-intrinsics.txt", color.K)
+    np.savetxt(tmp_path / "camera-intrinsics.txt", depth_cam.K)
+    for i, f in enumerate(ref.frames):
+        cv2.imwrite(str(tmp_path / f"frame-{i:06d}.depth.png"),
+                    np.round(room_depth(depth_cam, f.camera_to_world) * 1000).astype(np.uint16))
+    scan = open_scan(tmp_path)
+    assert scan.intrinsics == color and scan.depth_intrinsics == depth_cam
+    for i in (0, 5):
+        got, exact = scan.depth(i), room_depth(color, ref.frames[i].camera_to_world)
+        seen = got > 0
+        assert 0.5 < seen.mean() < 0.95  # the depth camera sees less than the colour camera
+        assert np.median(np.abs(got[seen] - exact[seen]) / exact[seen]) < 0.01
+
+
 def test_sevenscenes_real_sequence(sevenscenes):
     scan = open_scan(sevenscenes)
-    assert len(scan) == 1000 and scan.intrinsics.fx == 585
+    assert len(scan) == 1000 and scan.intrinsics.fx == 525 and scan.depth_intrinsics.fx == 585
     for i in (0, 400, 800):
         rel = reprojection_disagreement(scan.depth(i), scan.depth(i + 5), scan.intrinsics.K,
                                         scan.frames[i].camera_to_world, scan.frames[i + 5].camera_to_world)

@@ -48,6 +48,16 @@ def image_size(path: Path) -> tuple[int, int]:
     return img.shape[1], img.shape[0]
 
 
+def depth_size(path: Path) -> tuple[int, int]:
+    """(width, height) of a depth image file."""
+    import cv2
+
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ScanFormatError(f"{path}: unreadable depth image")
+    return raw.shape[1], raw.shape[0]
+
+
 def require_dir(path: Path, what: str) -> Path:
     if not path.is_dir():
         raise ScanFormatError(f"{path}: missing {what} folder")

@@ -1,8 +1,8 @@
 """ScanNet export layout (the SensReader output): color/, depth/, pose/, intrinsic/.
 
 `pose/N.txt` is camera-to-world; `intrinsic/intrinsic_color.txt` (4x4) describes the
-color images; depth is millimetres at its own (smaller) resolution and is resampled
-onto the color grid by the Scan. Frames with invalid (inf/NaN) poses are dropped, as
+color images and `intrinsic/intrinsic_depth.txt` the depth maps (millimetres, at their own
+smaller resolution), which the Scan resamples onto the color camera. Frames with invalid (inf/NaN) poses are dropped, as
 ScanNet marks lost tracking that way.
 """
 from pathlib import Path
@@ -12,7 +12,7 @@ import numpy as np
 from recon.errors import ScanFormatError
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
-from ._common import frame_number, image_size, load_matrix, numbered_files, require_dir
+from ._common import depth_size, frame_number, image_size, load_matrix, numbered_files, require_dir
 
 NAME = "scannet"
 
@@ -30,6 +30,8 @@ def read(path: Path) -> Scan:
         raise ScanFormatError(f"{kfile}: missing color intrinsics")
     K = load_matrix(kfile, (4, 4))[:3, :3]
     w, h = image_size(colors[0])
+    depth_K_file = path / "intrinsic" / "intrinsic_depth.txt"
+    depth_intr = None
     frames, dropped = [], 0
     for c in colors:
         n = frame_number(c)
@@ -45,5 +47,14 @@ def read(path: Path) -> Scan:
                             depth_path=depth if depth.is_file() else None, source_index=n))
     if not frames:
         raise ScanFormatError(f"{path}: every pose is invalid")
+    first_depth = next((f.depth_path for f in frames if f.depth_path is not None), None)
+    if first_depth is not None:
+        dw, dh = depth_size(first_depth)
+        if depth_K_file.is_file():
+            depth_intr = Intrinsics.from_K(load_matrix(depth_K_file, (4, 4))[:3, :3], dw, dh)
+        elif (dw, dh) != (w, h):
+            raise ScanFormatError(f"{depth_K_file}: missing, and depth ({dw}x{dh}) differs from color ({w}x{h})")
     meta = ScanMetadata(metric_scale=True, source_format=NAME, extra={"dropped_invalid_poses": dropped})
-    return Scan(Intrinsics.from_K(K, w, h), frames, meta, root=path)
+    color = Intrinsics.from_K(K, w, h)
+    return Scan(color, frames, meta, root=path, depth_intrinsics=None if depth_intr in (None, color) else depth_intr)
+
