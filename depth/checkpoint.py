@@ -1,0 +1,98 @@
+"""One-file checkpoints: network config + weights + metadata (+ optimiser state for resuming).
+
+`--weights compact` resolves to depth/weights/compact.pt (shipped with the package);
+anything else is a path. Weights may be stored as float16 (half the size) and come
+back as float32. Loading checks the file is ours, readable and of the expected config.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from recon.errors import ReconError
+from recon.io import atomic_path
+
+from .config import CONFIGS, ESTConfig
+
+FORMAT = "recon-est-depth"
+VERSION = 1
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+
+@dataclass
+class Checkpoint:
+    """What a checkpoint file holds. `training` is the resumable state (optimiser, scheduler,
+    step, epoch) or empty for shipped weights; `metadata` says what it was trained on."""
+
+    config: ESTConfig
+    state_dict: dict[str, torch.Tensor]
+    metadata: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+
+
+def resolve_weights(name_or_path: str | os.PathLike) -> Path:
+    """A shipped weights name (e.g. `compact`) -> depth/weights/<name>.pt, else the path itself."""
+    text = str(name_or_path)
+    if text in CONFIGS or (os.sep not in text and not text.endswith(".pt") and "." not in text):
+        path = WEIGHTS_DIR / f"{text}.pt"
+        if not path.is_file():
+            raise ReconError(f"no shipped depth weights named {text!r} ({path} is missing); train some with "
+                             "`recon train`, pass --weights PATH, or use --mode planesweep (needs no weights)")
+        return path
+    path = Path(text)
+    if not path.is_file():
+        raise ReconError(f"{path}: depth weights file not found")
+    return path
+
+
+def save_checkpoint(path: str | os.PathLike, model: torch.nn.Module, config: ESTConfig,
+                    metadata: dict[str, Any] | None = None, training: dict[str, Any] | None = None,
+                    fp16: bool = False) -> Path:
+    """Write a checkpoint atomically. `fp16` stores floating-point tensors as float16."""
+    state = {k: (v.detach().to("cpu", torch.float16) if fp16 and v.is_floating_point() else v.detach().cpu())
+             for k, v in model.state_dict().items()}
+    doc = {"format": FORMAT, "version": VERSION, "config": config.to_dict(), "state_dict": state,
+           "storage": "float16" if fp16 else "float32", "metadata": dict(metadata or {}),
+           "training": dict(training or {})}
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(doc, tmp)
+    return path
+
+
+def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None = None) -> Checkpoint:
+    """Read a checkpoint (tensors on CPU, float32). Raises ReconError for a file that is not
+    a depth checkpoint, is corrupt, or holds another configuration than `expected`."""
+    path = resolve_weights(name_or_path)
+    try:
+        doc = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise ReconError(f"{path}: unreadable depth checkpoint ({type(exc).__name__}: {exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ReconError(f"{path}: not a depth network checkpoint (no '{FORMAT}' header)")
+    if doc.get("version") != VERSION:
+        raise ReconError(f"{path}: unsupported checkpoint version {doc.get('version')!r}")
+    config = ESTConfig.from_dict(doc["config"])
+    if expected is not None and config != expected:
+        diff = [k for k, v in config.to_dict().items() if expected.to_dict()[k] != v]
+        raise ReconError(f"{path}: checkpoint is for depth config {config.name!r}, expected {expected.name!r} "
+                         f"(differs in {', '.join(diff)})")
+    state = {k: v.float() if v.is_floating_point() else v for k, v in doc["state_dict"].items()}
+    return Checkpoint(config, state, doc.get("metadata", {}), doc.get("training", {}))
+
+
+def build_model(checkpoint: Checkpoint) -> torch.nn.Module:
+    """An ESTNet of the checkpoint's config with its weights (eval mode, CPU)."""
+    from .model import ESTNet
+
+    model = ESTNet(checkpoint.config)
+    try:
+        model.load_state_dict(checkpoint.state_dict)
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0]
+        raise ReconError(f"checkpoint weights do not fit the {checkpoint.config.name!r} network: {first}") from None
+    return model.eval()

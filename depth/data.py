@@ -1,0 +1,126 @@
+"""Training clips from canonical scans: 5 consecutive (key)frames, GT depth, photometric augmentation.
+
+`ClipDataset` indexes clips of a finite list of scans (random access, shuffling);
+`StreamingClips` draws clips from any iterable of scans (e.g. the synthetic-scene
+generator), so training can consume scenes as they are produced.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset, IterableDataset
+
+from recon.errors import ReconError
+from recon.scan import Scan
+
+
+@dataclass(frozen=True)
+class ClipOptions:
+    clip_length: int = 5  # frames per clip; the middle clip_length - 2 are targets
+    frame_gap: int = 1  # step between clip frames (in scan frames)
+    width: int = 320  # network input size
+    height: int = 256
+    augment: bool = True
+    brightness: float = 0.2  # max relative change
+    contrast: float = 0.2
+    saturation: float = 0.2
+    gamma: float = 0.2
+    depth_margin: float = 0.1  # range from GT: [min * (1 - m), max * (1 + m)] when metadata has none
+
+
+def _augment(images: torch.Tensor, opts: ClipOptions, gen: torch.Generator) -> torch.Tensor:
+    """Photometric jitter, the same draw for every frame of a clip (keeps matching consistent).
+
+    images (V, 3, H, W) in [0, 1] -> same shape.
+    """
+    def draw(amount):
+        return 1.0 + (torch.rand((), generator=gen).item() * 2 - 1) * amount
+
+    x = images.clamp(0, 1) ** draw(opts.gamma)
+    x = x * draw(opts.brightness)
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    x = (x - mean) * draw(opts.contrast) + mean
+    gray = x.mean(dim=1, keepdim=True)
+    x = (x - gray) * draw(opts.saturation) + gray
+    return x.clamp(0, 1)
+
+
+def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | None = None) -> dict:
+    """One clip as tensors: images (V, 3, H, W) in [0, 1], K (3, 3) at H x W, camera_to_world
+    (V, 4, 4), depth (V, H, W) metres (0 = invalid), depth_range (2,)."""
+    idx = [start + k * opts.frame_gap for k in range(opts.clip_length)]
+    net = scan.resized(opts.width, opts.height)
+    images, depths = [], []
+    for i in idx:
+        images.append(torch.from_numpy(np.ascontiguousarray(net.image(i))).permute(2, 0, 1).float() / 255.0)
+        d = net.depth(i)
+        if d is None:
+            raise ReconError(f"{scan.root or 'scan'} frame {scan.frames[i].name}: training needs GT depth")
+        depths.append(torch.from_numpy(np.nan_to_num(d, nan=0.0, posinf=0.0)))
+    images, depth = torch.stack(images), torch.stack(depths)
+    if opts.augment and gen is not None:
+        images = _augment(images, opts, gen)
+    if scan.metadata.depth_range is not None:
+        lo, hi = scan.metadata.depth_range
+    else:
+        valid = depth[depth > 0]
+        if valid.numel() == 0:
+            raise ReconError(f"{scan.root or 'scan'}: clip at frame {start} has no valid GT depth")
+        lo, hi = float(valid.min()) * (1 - opts.depth_margin), float(valid.max()) * (1 + opts.depth_margin)
+    depth = torch.where((depth >= lo) & (depth <= hi), depth, torch.zeros_like(depth))
+    return {"images": images, "K": torch.from_numpy(net.intrinsics.K).float(),
+            "camera_to_world": torch.from_numpy(scan.camera_to_world[idx]).float(),
+            "depth": depth, "depth_range": torch.tensor([lo, hi], dtype=torch.float32)}
+
+
+def _clip_starts(scan: Scan, opts: ClipOptions) -> range:
+    span = (opts.clip_length - 1) * opts.frame_gap
+    return range(0, max(len(scan) - span, 0))
+
+
+class ClipDataset(Dataset):
+    """All clips of a list of scans (each scan validated and required to have GT depth)."""
+
+    def __init__(self, scans: Iterable[Scan], opts: ClipOptions = ClipOptions(), seed: int = 0):
+        self.scans = [s.validate() for s in scans]
+        self.opts, self.seed = opts, seed
+        self.index = [(k, start) for k, s in enumerate(self.scans) for start in _clip_starts(s, opts)]
+        if not self.index:
+            raise ReconError(f"no training clips: every scan is shorter than {opts.clip_length} frames "
+                             f"at frame gap {opts.frame_gap}")
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> dict:
+        k, start = self.index[i]
+        gen = torch.Generator().manual_seed(hash((self.seed, self.epoch, i)) & 0x7FFFFFFF)
+        return make_clip(self.scans[k], start, self.opts, gen)
+
+    def describe(self) -> dict:
+        """What the data is, for checkpoint metadata."""
+        return {"scans": [str(s.root or s.metadata.source) for s in self.scans], "clips": len(self),
+                "clip_length": self.opts.clip_length, "frame_gap": self.opts.frame_gap,
+                "size": [self.opts.width, self.opts.height]}
+
+
+class StreamingClips(IterableDataset):
+    """Clips drawn from an iterable of scans as it yields them (every clip of each scan, in order)."""
+
+    def __init__(self, scans: Iterable[Scan], opts: ClipOptions = ClipOptions(), seed: int = 0):
+        self.scans, self.opts, self.seed = scans, opts, seed
+
+    def __iter__(self) -> Iterator[dict]:
+        gen = torch.Generator().manual_seed(self.seed)
+        for scan in self.scans:
+            scan.validate()
+            for start in _clip_starts(scan, self.opts):
+                yield make_clip(scan, start, self.opts, gen)
+
+    def describe(self) -> dict:
+        return {"stream": type(self.scans).__name__, "clip_length": self.opts.clip_length,
+                "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height]}

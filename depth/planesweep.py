@@ -1,0 +1,104 @@
+"""Classical plane-sweep stereo: the non-learned baseline and the fallback without weights.
+
+For each depth plane every source image is warped into the reference view (the same
+homographies as the network, `depth.geometry.plane_sweep_warp`), compared with the
+reference by zero-mean normalised cross-correlation over a window, averaged over the
+sources, aggregated over a second window, and the best plane is taken per pixel
+(winner-take-all) with a parabola fit between neighbouring planes for sub-plane depth.
+Pixels are kept only where the match is distinctive and consistent: enough reference
+texture, a high NCC score, and multi-view consistency: of the sources that see the pixel,
+at least `min_agreeing_sources` (all of them when fewer see it) must have their own best
+plane near the chosen one. Invalid pixels are 0.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from .geometry import depth_at_index, depth_planes, plane_sweep_warp
+
+
+@dataclass(frozen=True)
+class PlaneSweepOptions:
+    num_planes: int = 64
+    spacing: str = "inverse"
+    ncc_window: int = 7
+    aggregation_window: int = 5
+    min_score: float = 0.5  # NCC of the chosen plane
+    min_texture: float = 4e-4  # variance of the reference window, intensities in [0, 1]
+    min_agreeing_sources: int = 2
+    agreement_planes: float = 2.0
+    width: int = 320  # working width (height follows the aspect ratio)
+
+
+def _box(x: torch.Tensor, k: int) -> torch.Tensor:
+    return F.avg_pool2d(x, k, 1, k // 2, count_include_pad=False)
+
+
+def to_gray(rgb: torch.Tensor) -> torch.Tensor:
+    """(..., 3, H, W) RGB in [0, 1] -> (..., H, W) luma."""
+    w = torch.tensor([0.299, 0.587, 0.114], dtype=rgb.dtype, device=rgb.device).view(3, 1, 1)
+    return (rgb * w).sum(-3)
+
+
+@torch.no_grad()
+def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
+                      src_camera_to_world: torch.Tensor, depth_range: tuple[float, float],
+                      opts: PlaneSweepOptions = PlaneSweepOptions()) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth and confidence of the reference view.
+
+    ref (H, W) and sources (S, H, W) grayscale in [0, 1]; K (3, 3) at H x W; poses (4, 4)
+    and (S, 4, 4) camera-to-world -> depth (H, W) metres (0 = filtered out), confidence (H, W)
+    in [0, 1] (NCC of the chosen plane, 0 where filtered).
+    """
+    h, w = ref.shape
+    s_count = sources.shape[0]
+    dt = ref.dtype
+    lo = torch.tensor([depth_range[0]], dtype=dt, device=ref.device)
+    hi = torch.tensor([depth_range[1]], dtype=dt, device=ref.device)
+    planes = depth_planes(lo, hi, opts.num_planes, opts.spacing)
+    k = opts.ncc_window
+    r = ref[None, None]
+    mu_r = _box(r, k)
+    var_r = (_box(r * r, k) - mu_r * mu_r).clamp_min(0)
+    costs = []
+    for s in range(s_count):
+        warped, valid = plane_sweep_warp(sources[s][None, None], K[None], K[None], ref_camera_to_world[None],
+                                         src_camera_to_world[s][None], planes)
+        x = warped[0, 0].unsqueeze(1)  # (D, 1, H, W)
+        mu_s = _box(x, k)
+        var_s = (_box(x * x, k) - mu_s * mu_s).clamp_min(0)
+        cov = _box(x * r, k) - mu_s * mu_r
+        ncc = cov / torch.sqrt(var_r * var_s + 1e-6)
+        full = _box(valid[0].unsqueeze(1).to(dt), k) > 0.999  # the whole window inside the source
+        cost = torch.where(full, 1.0 - ncc, torch.full_like(ncc, float("nan")))
+        costs.append(cost[:, 0])
+    costs = torch.stack(costs)  # (S, D, H, W)
+    seen = torch.isfinite(costs)
+    mean_cost = torch.where(seen, costs, torch.zeros_like(costs)).sum(0) / seen.sum(0).clamp_min(1)
+    mean_cost = torch.where(seen.any(0), mean_cost, torch.full_like(mean_cost, 2.0))
+    agg = _box(mean_cost[:, None], opts.aggregation_window)[:, 0]  # (D, H, W)
+    best = agg.argmin(0)  # (H, W)
+    d = opts.num_planes
+    c0 = agg.gather(0, best[None])[0]
+    cm = agg.gather(0, (best - 1).clamp_min(0)[None])[0]
+    cp = agg.gather(0, (best + 1).clamp_max(d - 1)[None])[0]
+    curvature = cm - 2 * c0 + cp
+    interior = (best > 0) & (best < d - 1) & (curvature > 1e-6)
+    offset = torch.where(interior, 0.5 * (cm - cp) / curvature.clamp_min(1e-6), torch.zeros_like(c0))
+    index = best.to(dt) + offset.clamp(-0.5, 0.5)
+    depth = depth_at_index(index[None], lo, hi, d, opts.spacing)[0]
+    # Multi-view consistency: each source's own aggregated best plane must agree with the choice.
+    per_source = _box(torch.nan_to_num(costs, nan=2.0).flatten(0, 1)[:, None], opts.aggregation_window)
+    per_source_best = per_source.view(s_count, d, h, w).argmin(1).to(dt)
+    # Only sources that see the pixel at the chosen plane can confirm it (others are out of view).
+    seeing = seen.gather(1, best[None, None].expand(s_count, 1, h, w))[:, 0]  # (S, H, W)
+    agreeing = (((per_source_best - index).abs() <= opts.agreement_planes) & seeing).sum(0)
+    needed = torch.minimum(seeing.sum(0), torch.full_like(agreeing, opts.min_agreeing_sources))
+    score = 1.0 - c0
+    keep = ((score >= opts.min_score) & (var_r[0, 0] >= opts.min_texture)
+            & (needed > 0) & (agreeing >= needed) & (best > 0) & (best < d - 1))
+    zero = torch.zeros_like(depth)
+    return torch.where(keep, depth, zero), torch.where(keep, score.clamp(0, 1), zero)

@@ -1,0 +1,96 @@
+"""Checkpoint files: bit-exact round trip, fp16 storage, names, and refusal of bad files."""
+import pytest
+import torch
+
+from depth.checkpoint import build_model, load_checkpoint, resolve_weights, save_checkpoint
+from depth.config import TINY
+from depth.model import ESTNet
+from recon.errors import ReconError
+
+
+def _trained_like(cfg=TINY):
+    torch.manual_seed(1)
+    net = ESTNet(cfg)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(torch.randn_like(p) * 0.1)
+        for name, b in net.named_buffers():
+            if name.endswith("running_var"):
+                b.uniform_(0.5, 2.0)
+    return net
+
+
+def test_round_trip_is_bit_exact(tmp_path):
+    net = _trained_like()
+    path = save_checkpoint(tmp_path / "a.pt", net, TINY, {"data": {"scans": ["x"]}, "steps": 7})
+    ckpt = load_checkpoint(path, expected=TINY)
+    assert ckpt.config == TINY and ckpt.metadata["steps"] == 7
+    original = net.state_dict()
+    assert set(ckpt.state_dict) == set(original)
+    for k, v in original.items():
+        assert ckpt.state_dict[k].dtype == v.dtype and torch.equal(ckpt.state_dict[k], v), k
+    restored = build_model(ckpt)
+    images = torch.rand(1, 3, 3, TINY.image_height, TINY.image_width)
+    K = torch.tensor([[[70.0, 0, 47.5], [0, 70.0, 31.5], [0, 0, 1]]])
+    poses = torch.eye(4).repeat(1, 3, 1, 1)
+    poses[0, :, 0, 3] = torch.tensor([0.0, 0.1, 0.2])
+    rng = torch.tensor([[1.0, 5.0]])
+    with torch.no_grad():
+        a = net.eval()(images, K, poses, rng)[0].depths[3]
+        b = restored(images, K, poses, rng)[0].depths[3]
+    assert torch.equal(a, b)
+
+
+def test_fp16_storage_halves_the_file_and_rounds_weights(tmp_path):
+    net = _trained_like()
+    full = save_checkpoint(tmp_path / "full.pt", net, TINY)
+    half = save_checkpoint(tmp_path / "half.pt", net, TINY, fp16=True)
+    assert half.stat().st_size < 0.65 * full.stat().st_size
+    ckpt = load_checkpoint(half)
+    for k, v in net.state_dict().items():
+        got = ckpt.state_dict[k]
+        if v.is_floating_point():
+            assert got.dtype == torch.float32 and torch.equal(got, v.half().float()), k
+        else:
+            assert torch.equal(got, v), k
+
+
+def test_bad_checkpoints_are_refused(tmp_path):
+    net = _trained_like()
+    path = save_checkpoint(tmp_path / "tiny.pt", net, TINY)
+    with pytest.raises(ReconError, match="expected 'other'"):
+        load_checkpoint(path, expected=TINY.replace(name="other", num_planes=24))
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ReconError, match="unreadable"):
+        load_checkpoint(corrupt)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(ReconError, match="not a depth network checkpoint"):
+        load_checkpoint(foreign)
+    with pytest.raises(ReconError, match="not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+    with pytest.raises(ReconError, match="planesweep"):
+        resolve_weights("nosuchweights")
+    # Weights that do not fit the config they claim.
+    doc = torch.load(path, weights_only=True)
+    doc["config"]["num_planes"] = 24
+    torch.save(doc, tmp_path / "mismatch.pt")
+    with pytest.raises(ReconError, match="do not fit"):
+        build_model(load_checkpoint(tmp_path / "mismatch.pt"))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cpu_and_cuda_agree():
+    net = _trained_like().eval()
+    images = torch.rand(1, 3, 3, TINY.image_height, TINY.image_width)
+    K = torch.tensor([[[70.0, 0, 47.5], [0, 70.0, 31.5], [0, 0, 1]]])
+    poses = torch.eye(4).repeat(1, 3, 1, 1)
+    poses[0, :, 0, 3] = torch.tensor([0.0, 0.1, 0.2])
+    rng = torch.tensor([[1.0, 5.0]])
+    torch.backends.cudnn.allow_tf32 = False
+    torch.backends.cuda.matmul.allow_tf32 = False
+    with torch.no_grad():
+        cpu = net(images, K, poses, rng)[0].depths[3]
+        gpu = net.cuda()(images.cuda(), K.cuda(), poses.cuda(), rng.cuda())[0].depths[3].cpu()
+    assert ((cpu - gpu).abs() / cpu).max() < 1e-3

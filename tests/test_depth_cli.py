@@ -1,0 +1,63 @@
+"""`recon depth` / `recon train` / `recon bench depth` through the CLI entry point."""
+import json
+
+import numpy as np
+import pytest
+
+from apps.cli import main
+from depth.synthetic_planes import plane_scan
+from recon.io import load_depth_map
+from recon.scan import save_scan
+
+
+@pytest.fixture(scope="module")
+def scan_dir(tmp_path_factory):
+    return save_scan(plane_scan(5, 128, 96, step=0.08), tmp_path_factory.mktemp("scan") / "scan")
+
+
+def test_recon_depth_planesweep_writes_maps(scan_dir, tmp_path, capsys):
+    out = tmp_path / "depth"
+    assert main(["-q", "depth", str(scan_dir), "--out", str(out), "--mode", "planesweep", "--max-frames", "4"]) == 0
+    summary = json.loads((out / "depth.json").read_text())
+    assert [f["name"] for f in summary["frames"]] == ["000000", "000001", "000002", "000003"]
+    depth = load_depth_map(out, "000001")
+    gt = plane_scan(5, 128, 96, step=0.08).depth(1)
+    valid = depth > 0
+    assert valid.mean() > 0.4 and np.mean(np.abs(depth[valid] - gt[valid]) / gt[valid]) < 0.1
+    assert "wrote 4 depth maps" in capsys.readouterr().out
+
+
+def test_recon_depth_keyframes_only(scan_dir, tmp_path):
+    out = tmp_path / "depth"
+    # The scan moves 0.08 m per frame: a 0.15 keyframe distance keeps every other frame.
+    assert main(["-q", "depth", str(scan_dir), "--out", str(out), "--mode", "planesweep",
+                 "--keyframe-distance", "0.15", "--depth-range", "1", "5"]) == 0
+    names = [f["name"] for f in json.loads((out / "depth.json").read_text())["frames"]]
+    assert names == ["000000", "000002", "000004"]
+
+
+def test_recon_depth_without_weights_points_to_planesweep(scan_dir, tmp_path, capsys):
+    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "estm"]) == 2
+    err = capsys.readouterr().err
+    assert "recon: error:" in err and "planesweep" in err and "--weights" in err
+
+
+def test_recon_depth_and_train_refuse_bad_arguments(scan_dir, tmp_path, capsys):
+    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "planesweep",
+                 "--depth-range", "4", "2"]) == 2
+    assert "invalid depth range" in capsys.readouterr().err
+    assert main(["train", str(scan_dir), "--out", str(tmp_path / "t"), "--config", "huge"]) == 2
+    assert "unknown depth network config" in capsys.readouterr().err
+    assert main(["train", "--out", str(tmp_path / "t")]) == 2
+    assert "scans or --synthetic" in capsys.readouterr().err
+    assert main(["train", "--synthetic", "--out", str(tmp_path / "t")]) == 2
+    assert "--max-steps" in capsys.readouterr().err
+
+
+def test_recon_bench_depth_json(capsys):
+    assert main(["bench", "depth", "--config", "compact", "--frames", "1", "--threads", "1", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("config", "device", "params_m", "gmacs", "peak_mem_mb", "s_per_frame", "planesweep_s_per_frame"):
+        assert key in result
+    assert result["config"] == "compact" and result["params_m"] == pytest.approx(0.692, abs=0.001)
+    assert 15 < result["gmacs"] < 20 and result["s_per_frame"] > 0 and result["frames"] == 1

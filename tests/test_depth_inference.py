@@ -1,0 +1,181 @@
+"""Depth over a scan: ESTM memory, agreement between modes, resizing, outputs on disk, bad input."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from depth.checkpoint import save_checkpoint
+from depth.config import TINY
+from depth.inference import DepthEstimator, DepthOptions, TemporalMemory, estimate_depth
+from depth.model import ESTNet
+from depth.selection import pose_distance, select_keyframes, select_sources
+from depth.synthetic_planes import lateral_path, plane_scan
+from recon.errors import ReconError
+from recon.io import load_confidence_map, load_depth_map
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def estimator():
+    torch.manual_seed(0)
+    return DepthEstimator(ESTNet(TINY), "cpu")
+
+
+@pytest.fixture(scope="module")
+def scan():
+    return plane_scan(5, 120, 90, step=0.08)  # not the network size: resized in and out
+
+
+def _run(estimator, scan, **kw):
+    return list(estimator.run(scan, DepthOptions(**kw)))
+
+
+def test_estm_memory_holds_last_n_and_drops_oldest(estimator, scan):
+    memory = TemporalMemory(2)
+    seen = []
+    for r in estimator.run(scan, DepthOptions(mode="estm"), memory=memory):
+        seen.append(list(memory.names))
+    names = scan.names
+    assert seen == [names[:1], names[:2], names[1:3], names[2:4], names[3:5]]
+
+
+def test_modes_agree_where_they_should(estimator, scan):
+    independent = _run(estimator, scan, mode="independent")
+    estm = _run(estimator, scan, mode="estm")
+    no_memory = _run(estimator, scan, mode="estm", memory_size=0)
+    joint_single = _run(estimator, scan, mode="joint", joint_group=1)
+    joint = _run(estimator, scan, mode="joint", joint_group=3)
+    for a, b, c in zip(independent, no_memory, joint_single):
+        assert np.array_equal(a.depth, b.depth) and np.array_equal(a.depth, c.depth)
+    # The first ESTM frame has an empty memory: identical to independent; later ones read the memory.
+    assert np.array_equal(estm[0].depth, independent[0].depth)
+    assert all(np.abs(e.depth - i.depth).max() > 1e-5 for e, i in zip(estm[1:], independent[1:]))
+    # Joint on a 3-frame group: every frame attends to the other two, so all differ from independent.
+    assert all(np.abs(j.depth - i.depth).max() > 1e-5 for j, i in zip(joint[:3], independent[:3]))
+    for r in estm:
+        assert r.depth.shape == (90, 120) and r.confidence.shape == (90, 120)
+        assert r.depth.min() >= 1.0 - 1e-4 and r.depth.max() <= 5.0 + 1e-4
+
+
+def test_online_window_uses_past_frames_only(estimator, scan):
+    results = _run(estimator, scan, mode="estm", window="online")
+    # The first two frames have no two past sources: skipped; every other frame looks back only.
+    assert [r.index for r in results] == [2, 3, 4]
+    assert all(max(r.sources) < r.index for r in results)
+
+
+def test_estimate_depth_writes_maps_and_summary(tmp_path, scan):
+    torch.manual_seed(0)
+    weights = save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY, {"note": "random"})
+    out = tmp_path / "depth"
+    calls = []
+    summary = estimate_depth(scan, out, DepthOptions(mode="estm"), weights=weights,
+                             progress=lambda i, n: calls.append((i, n)))
+    assert calls[-1] == (5, 5) and summary["config"] == "tiny"
+    expected = select_sources(scan.camera_to_world)[2]
+    assert summary["frames"][2]["sources"] == [scan.names[j] for j in expected]
+    depth = load_depth_map(out, scan.names[2])
+    assert depth.shape == (90, 120) and depth.dtype == np.float32
+    assert load_confidence_map(out, scan.names[2]).shape == (90, 120)
+    assert (out / "depth.json").is_file()
+    ps = estimate_depth(scan, tmp_path / "ps", DepthOptions(mode="planesweep"))
+    assert ps["mode"] == "planesweep" and len(ps["frames"]) == 5
+    gt = scan.depth(2)
+    pred = load_depth_map(tmp_path / "ps", scan.names[2])
+    valid = pred > 0
+    assert valid.mean() > 0.4
+    assert np.mean(np.abs(pred[valid] - gt[valid]) / gt[valid]) < 0.1
+
+
+def test_bad_input_is_refused(tmp_path, estimator, scan):
+    with pytest.raises(ReconError, match="needs network weights"):
+        estimate_depth(scan, tmp_path / "x", DepthOptions(mode="estm"))
+    with pytest.raises(ReconError, match="unknown depth mode"):
+        estimate_depth(scan, tmp_path / "x", DepthOptions(mode="magic"))
+    bad_pose = dataclasses.replace(scan, frames=[dataclasses.replace(f) for f in scan.frames])
+    bad_pose.frames[3].camera_to_world = np.full((4, 4), np.nan)
+    with pytest.raises(ReconError, match="NaN"):
+        _run(estimator, bad_pose)
+    with pytest.raises(ReconError, match="at least 3 frames"):
+        _run(estimator, scan.subset([0, 1]))
+    static = dataclasses.replace(scan, frames=[dataclasses.replace(f, camera_to_world=np.eye(4))
+                                               for f in scan.frames])
+    with pytest.raises(ReconError, match="usable source"):
+        _run(estimator, static)
+    empty = dataclasses.replace(scan, frames=[dataclasses.replace(f, image_array=np.zeros((0, 0, 3), np.uint8))
+                                              for f in scan.frames])
+    with pytest.raises(ReconError):
+        _run(estimator, empty)
+    no_range = dataclasses.replace(scan, metadata=dataclasses.replace(scan.metadata, depth_range=None))
+    with pytest.raises(ReconError, match="depth range"):
+        _run(estimator, no_range)
+    with pytest.raises(ReconError, match="invalid depth range"):
+        _run(estimator, scan, depth_range=(3.0, 1.0))
+    weights = save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY)
+    with pytest.raises(ReconError, match="expected 'compact'"):
+        DepthEstimator.from_weights(weights, "cpu", config="compact")
+
+
+def test_source_selection_prefers_useful_baseline():
+    poses = lateral_path(16, step=0.03, yaw_per_frame=0.0)
+    offline = select_sources(poses)
+    for i, srcs in offline.items():
+        assert len(srcs) == 2 and i not in srcs
+        # 0.03 m steps: the sources sit about 0.15 m (5 frames) away, never at the nearest neighbours.
+        assert all(abs(np.linalg.norm(poses[i, :3, 3] - poses[j, :3, 3]) - 0.15) < 0.04 for j in srcs)
+    online = select_sources(poses, window="online")
+    assert all(j < i for i, srcs in online.items() for j in srcs)
+    assert online[0] == [] and len(online[6]) == 2
+    # Frames closer than min_baseline are dropped rather than used as a fallback.
+    crawl = lateral_path(8, step=0.002, yaw_per_frame=0.0)
+    crawl[:, 1, 3] = 0.0
+    assert all(srcs == [] for srcs in select_sources(crawl, search=3).values())
+    keys = select_keyframes(poses, 0.1)
+    assert keys[0] == 0 and all(pose_distance(poses[a], poses[b]) >= 0.1 for a, b in zip(keys, keys[1:]))
+    assert all(pose_distance(poses[a], poses[j]) < 0.1 for a, b in zip(keys, keys[1:]) for j in range(a + 1, b))
+
+
+def test_resume_reuses_finished_frames_only_with_same_settings(tmp_path, scan):
+    out = tmp_path / "ps"
+    opts = DepthOptions(mode="planesweep")
+
+    def stop_after_two(i, n):
+        if i == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        estimate_depth(scan, out, opts, progress=stop_after_two)
+    assert not (out / "depth.json").exists() and (out / "000001.npy").is_file()
+    computed = []
+    summary = estimate_depth(scan, out, opts, resume=True, progress=lambda i, n: computed.append(i))
+    assert computed == [3, 4, 5]
+    assert [f.get("reused", False) for f in summary["frames"]] == [True, True, False, False, False]
+    computed.clear()
+    again = estimate_depth(scan, out, opts, resume=True, progress=lambda i, n: computed.append(i))
+    assert computed == [] and again == summary
+    other = DepthOptions(mode="planesweep", depth_range=(1.0, 6.0))
+    estimate_depth(scan, out, other, resume=True, progress=lambda i, n: computed.append(i))
+    assert computed == [1, 2, 3, 4, 5]
+
+
+def test_bf16_precision_stays_close_to_fp32(estimator, scan):
+    fp32 = _run(estimator, scan, mode="estm")
+    bf16 = []
+    for r in estimator.run(scan, DepthOptions(mode="estm", precision="bf16")):
+        assert not torch.is_autocast_enabled("cpu")  # autocast does not leak out of the generator
+        bf16.append(r)
+    for a, b in zip(fp32, bf16):
+        rel = np.abs(a.depth - b.depth) / a.depth
+        assert b.depth.dtype == np.float32 and rel.mean() < 0.01 and rel.max() < 0.1
+    assert any(np.abs(a.depth - b.depth).max() > 0 for a, b in zip(fp32, bf16))  # it did run in bf16
+    with pytest.raises(ReconError, match="precision"):
+        _run(estimator, scan, precision="fp8")

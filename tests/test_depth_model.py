@@ -1,0 +1,137 @@
+"""The EST network: sizes against the paper, output shapes, gradients, fusion variants, backbone loading."""
+import pytest
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from depth.config import COMPACT, PAPER, TINY, ESTConfig, get_config
+from depth.loss import multi_stage_l1, stage_weights
+from depth.model import ESTNet
+from depth.model.context import ContextNet
+from depth.model.volumes import soft_argmax_depth
+from recon.errors import ReconError
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _window(cfg, batch=1, views=3):
+    torch.manual_seed(0)
+    images = torch.rand(batch, views, 3, cfg.image_height, cfg.image_width)
+    K = torch.tensor([[0.8 * cfg.image_width, 0, cfg.image_width / 2 - 0.5],
+                      [0, 0.8 * cfg.image_width, cfg.image_height / 2 - 0.5], [0, 0, 1]]).expand(batch, 3, 3)
+    poses = torch.eye(4).repeat(batch, views, 1, 1)
+    poses[:, :, 0, 3] = torch.arange(views) * 0.1
+    return images, K.contiguous(), poses, torch.tensor([[1.0, 5.0]]).expand(batch, 2).contiguous()
+
+
+def test_paper_config_matches_paper_size():
+    """36.2 M parameters and 176.9 G MACs at 320x256 for one ESTM step (3-frame window, memory 2)."""
+    with torch.device("meta"):
+        net = ESTNet(PAPER).eval()
+        images, K, poses, rng = _window(PAPER)
+        with torch.no_grad():
+            out = net(images, K, poses, rng, targets=[(1, (0, 2))])
+            counter = FlopCounterMode(display=False)
+            with counter:
+                net(images, K, poses, rng, targets=[(1, (0, 2))], memory=[out[0].memory] * 2)
+    params = sum(p.numel() for p in net.parameters()) / 1e6
+    gmacs = counter.get_total_flops() / 2e9
+    assert abs(params - 36.2) / 36.2 < 0.03
+    assert abs(gmacs - 176.9) / 176.9 < 0.03
+    assert sum(p.numel() for p in ESTNet(COMPACT).parameters()) < 0.05 * params * 1e6
+
+
+def test_outputs_shapes_and_ranges():
+    net = ESTNet(TINY).eval()
+    images, K, poses, rng = _window(TINY, batch=2, views=5)
+    with torch.no_grad():
+        outs = net(images, K, poses, rng)
+    assert len(outs) == 3
+    h, w = TINY.image_height, TINY.image_width
+    shapes = [tuple(d.shape) for d in outs[0].depths]
+    assert shapes == [(2, 1, h // 4, w // 4), (2, 1, h // 4, w // 4), (2, 1, h // 2, w // 2), (2, 1, h, w)]
+    for o in outs:
+        for d in o.depths:
+            assert d.min() >= 1.0 - 1e-4 and d.max() <= 5.0 + 1e-4
+        assert o.confidence.min() >= 1.0 / TINY.num_planes - 1e-6 and o.confidence.max() <= 1.0
+        assert o.memory.key.shape == (2, TINY.volume_channels // 2, TINY.num_planes, h // 4, w // 4)
+
+
+def test_soft_argmax_recovers_plane_depth():
+    planes = torch.linspace(1.0, 4.0, 7)[None]
+    logits = torch.full((1, 7, 2, 2), -30.0)
+    logits[0, 3] = 30.0
+    logits[0, 3, 1, 1] = -30.0
+    logits[0, 5, 1, 1], logits[0, 6, 1, 1] = 30.0, 30.0  # two equal peaks: halfway between planes 5 and 6
+    depth, conf = soft_argmax_depth(logits, planes)
+    assert torch.allclose(depth[0, 0], torch.tensor([[2.5, 2.5], [2.5, 3.75]]))
+    assert torch.allclose(conf[0, 0], torch.tensor([[1.0, 1.0], [1.0, 0.5]]))
+
+
+@pytest.mark.parametrize("fusion", ["adaptive", "concat"])
+def test_every_parameter_receives_a_gradient(fusion):
+    cfg = TINY.replace(fusion=fusion)
+    net = ESTNet(cfg).train()
+    images, K, poses, rng = _window(cfg, batch=1, views=5)
+    gt = torch.rand(1, 3, cfg.image_height, cfg.image_width) * 3 + 1.5
+    outs = net(images, K, poses, rng)
+    loss, per_stage = multi_stage_l1([o.depths for o in outs], gt)
+    loss.backward()
+    missing = [n for n, p in net.named_parameters() if p.grad is None or not torch.any(p.grad != 0)]
+    assert not missing, f"no gradient for {missing}"
+    assert len(per_stage) == 4 and all(x > 0 for x in per_stage)
+
+
+def test_memory_changes_the_fused_output():
+    net = ESTNet(TINY).eval()
+    images, K, poses, rng = _window(TINY)
+    with torch.no_grad():
+        alone = net(images, K, poses, rng, targets=[(1, (0, 2))])[0]
+        other = net(images.flip(1), K, poses, rng, targets=[(1, (0, 2))])[0].memory
+        with_memory = net(images, K, poses, rng, targets=[(1, (0, 2))], memory=[other])[0]
+    assert torch.equal(alone.depths[0], with_memory.depths[0])  # D0 is computed before the EST
+    assert (alone.depths[1] - with_memory.depths[1]).abs().max() > 1e-4
+
+
+def test_loss_weights_and_invalid_pixels():
+    assert stage_weights() == pytest.approx([0.512, 0.64, 0.8, 1.0])
+    gt = torch.zeros(1, 1, 4, 4)
+    gt[0, 0, :2] = 2.0  # half the pixels valid
+    pred_full = torch.full((1, 1, 4, 4), 3.0)
+    pred_low = torch.full((1, 1, 2, 2), 2.5)
+    loss, per_stage = multi_stage_l1([[pred_low, pred_low, pred_full, pred_full]], gt)
+    assert per_stage == pytest.approx([0.5, 0.5, 1.0, 1.0])
+    assert float(loss) == pytest.approx(0.512 * 0.5 + 0.64 * 0.5 + 0.8 + 1.0)
+
+
+def test_config_round_trip_and_errors():
+    assert ESTConfig.from_dict(COMPACT.to_dict()) == COMPACT
+    assert get_config("paper") is PAPER
+    with pytest.raises(ReconError):
+        get_config("huge")
+    with pytest.raises(ReconError):
+        TINY.replace(fusion="sum")
+    with pytest.raises(ReconError):
+        TINY.replace(image_width=100)
+
+
+def test_external_backbone_weights_load(tmp_path):
+    donor = ContextNet(TINY)
+    for p in donor.encoder.parameters():
+        torch.nn.init.normal_(p)
+    state = {f"module.{k}": v for k, v in donor.encoder.state_dict().items()}
+    state["fc.weight"] = torch.zeros(10, 24)  # a classifier head is ignored
+    torch.save(state, tmp_path / "backbone.pt")
+    net = ContextNet(TINY)
+    assert net.load_backbone(tmp_path / "backbone.pt") == []
+    for (k, a), b in zip(net.encoder.state_dict().items(), donor.encoder.state_dict().values()):
+        assert torch.equal(a, b), k
+    torch.save(ContextNet(COMPACT).encoder.state_dict(), tmp_path / "other.pt")
+    with pytest.raises(ReconError, match="does not match"):
+        net.load_backbone(tmp_path / "other.pt")

@@ -1,0 +1,133 @@
+"""Training: clips, the whole chain learning (overfitting a clip), exact resume."""
+import pytest
+import torch
+
+from depth.checkpoint import load_checkpoint
+from depth.config import TINY
+from depth.data import ClipDataset, ClipOptions, StreamingClips
+from depth.synthetic_planes import plane_scan
+from depth.train import TrainOptions, train
+from recon.errors import ReconError
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+CLIP = ClipOptions(width=TINY.image_width, height=TINY.image_height, augment=False)
+
+
+def _quiet(**kw):
+    return TrainOptions(device="cpu", val_every=0, checkpoint_every=0, lr_halve_every=10**6, epochs=10**6, **kw)
+
+
+def test_clips_shapes_augmentation_and_streaming():
+    scan = plane_scan(7, 120, 90, step=0.08)
+    ds = ClipDataset([scan], ClipOptions(width=96, height=64, augment=True))
+    assert len(ds) == 3
+    clip = ds[1]
+    assert clip["images"].shape == (5, 3, 64, 96) and clip["depth"].shape == (5, 64, 96)
+    assert clip["camera_to_world"].shape == (5, 4, 4) and clip["K"].shape == (3, 3)
+    assert torch.allclose(clip["K"], torch.from_numpy(scan.resized(96, 64).intrinsics.K).float())
+    assert clip["depth_range"].tolist() == [1.0, 5.0]
+    plain = ClipDataset([scan], ClipOptions(width=96, height=64, augment=False))[1]
+    assert torch.equal(clip["depth"], plain["depth"])  # augmentation is photometric only
+    assert (clip["images"] - plain["images"]).abs().mean() > 0.005
+    assert torch.equal(ds[1]["images"], clip["images"])  # deterministic per (seed, epoch, item)
+    streamed = list(StreamingClips(iter([scan, plane_scan(6, 120, 90, seed=3)]), ClipOptions(width=96, height=64)))
+    assert len(streamed) == 3 + 2
+    with pytest.raises(ReconError, match="no training clips"):
+        ClipDataset([scan.subset(range(4))], CLIP)
+
+
+def _overfit(out_dir, steps):
+    torch.manual_seed(0)
+    data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)  # two clips, one batch
+    return train(data, out_dir, _quiet(max_steps=steps, lr=2e-3, batch_size=2), model_config=TINY).losses
+
+
+def _drop(losses, head=3, tail=5):
+    return (sum(losses[:head]) / head) / (sum(losses[-tail:]) / tail)
+
+
+def test_tiny_model_starts_learning(tmp_path):
+    losses = _overfit(tmp_path, 60)
+    assert _drop(losses) > 5.0
+
+
+@pytest.mark.slow
+def test_tiny_model_overfits_a_clip(tmp_path):
+    losses = _overfit(tmp_path, 300)
+    assert _drop(losses) >= 10.0
+
+
+def test_resume_continues_exactly(tmp_path):
+    data = ClipDataset([plane_scan(5, 96, 64, step=0.08)], CLIP)
+    torch.manual_seed(0)
+    straight = train(data, tmp_path / "a", _quiet(max_steps=4, lr=1e-3), model_config=TINY)
+    torch.manual_seed(0)
+    first = train(data, tmp_path / "b", _quiet(max_steps=2, lr=1e-3), model_config=TINY)
+    resumed = train(data, tmp_path / "b", _quiet(max_steps=4, lr=1e-3), model_config=TINY,
+                    resume=first.checkpoint)
+    assert resumed.steps == 4 and resumed.losses == straight.losses[2:]
+    a, b = load_checkpoint(straight.model_path), load_checkpoint(resumed.model_path)
+    assert a.metadata["steps"] == 4 and a.metadata["data"]["clips"] == 1
+    for k, v in a.state_dict.items():
+        assert torch.equal(v, b.state_dict[k]), k
+    with pytest.raises(ReconError, match="no training state"):
+        train(data, tmp_path / "c", _quiet(max_steps=1), model_config=TINY, resume=straight.model_path)
+
+
+DDP_SCRIPT = """
+import os, sys, torch
+torch.set_num_threads(1)
+from depth.config import TINY
+from depth.data import ClipDataset, ClipOptions
+from depth.synthetic_planes import plane_scan
+from depth.train import TrainOptions, train
+ds = ClipDataset([plane_scan(7, 96, 64, step=0.08)], ClipOptions(width=96, height=64, augment=False))
+r = train(ds, sys.argv[1], TrainOptions(device="cpu", max_steps=2, epochs=5, val_every=0, checkpoint_every=0),
+          model_config=TINY)
+torch.save(r.losses, os.path.join(sys.argv[1], f"losses{os.environ['RANK']}.pt"))
+"""
+
+
+@pytest.mark.slow
+def test_distributed_training_under_torchrun(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "ddp.py"
+    script.write_text(DDP_SCRIPT)
+    torchrun = Path(sys.executable).with_name("torchrun")
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([str(torchrun), "--nproc_per_node", "2", "--master_port", "29541", str(script),
+                           str(tmp_path / "run")], cwd=root, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    l0, l1 = (torch.load(tmp_path / "run" / f"losses{r}.pt") for r in (0, 1))
+    assert len(l0) == len(l1) == 2 and l0 != l1  # each rank trains on its own shard
+    assert load_checkpoint(tmp_path / "run" / "model.pt").metadata["steps"] == 2
+
+
+def test_streamed_scans_with_steps_per_epoch(tmp_path):
+    def endless():
+        seed = 0
+        while True:
+            yield plane_scan(5, 96, 64, step=0.08, seed=seed)
+            seed += 1
+
+    torch.manual_seed(0)
+    stream = StreamingClips(endless(), CLIP)
+    opts = TrainOptions(device="cpu", val_every=0, checkpoint_every=0, max_steps=3, steps_per_epoch=1,
+                        lr_halve_every=1, lr=1e-3, epochs=100)
+    result = train(stream, tmp_path, opts, model_config=TINY)
+    assert result.steps == 3 and result.epochs == 3
+    state = load_checkpoint(result.checkpoint).training
+    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-3 / 8)
