@@ -26,7 +26,21 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(f"apps.commands.{name}").register(subparsers)
+    for sub in subparsers.choices.values():
+        _add_output_flags(sub)
     return parser
+
+
+def _add_output_flags(parser: argparse.ArgumentParser) -> None:
+    """Let --debug/--quiet/--verbose also follow the command (`recon run X --quiet`), at any depth."""
+    group = parser.add_argument_group("output")
+    group.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show full tracebacks")
+    group.add_argument("--quiet", "-q", action="store_true", default=argparse.SUPPRESS, help="only errors and results")
+    group.add_argument("--verbose", "-v", action="store_true", default=argparse.SUPPRESS, help="more log lines")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _add_output_flags(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,6 +19,7 @@ import collections
 import json
 import logging
 import os
+import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -29,7 +30,7 @@ import torch
 import torch.nn.functional as F
 
 from recon.errors import ReconError
-from recon.io import load_depth_map, save_depth_map, write_json_atomic
+from recon.io import atomic_path, load_depth_map, save_depth_map, write_json_atomic
 from recon.scan import Scan
 
 from .checkpoint import build_model, load_checkpoint
@@ -198,7 +199,8 @@ class DepthEstimator:
     def run(self, scan: Scan, opts: DepthOptions = DepthOptions(), memory: TemporalMemory | None = None,
             skip: frozenset[int] = frozenset()) -> Iterator[FrameDepth]:
         """Yield every frame's depth in order. `memory` (ESTM) can be passed in to inspect it;
-        `skip` lists frame indices not to compute (independent mode only: the others depend on order)."""
+        `skip` lists frame indices not to compute: any frames in independent mode; in estm mode the
+        first frames in order, with `memory` holding the entries of the last N of them (a resume)."""
         if opts.mode not in ("estm", "joint", "independent"):
             raise ReconError(f"mode {opts.mode!r} is not a network mode (estm, joint, independent)")
         if opts.precision not in PRECISIONS:
@@ -222,7 +224,7 @@ class DepthEstimator:
         if memory is None:
             memory = TemporalMemory(cfg.memory_size if opts.memory_size is None else opts.memory_size)
         for i in sources:
-            if opts.mode == "independent" and i in skip:
+            if opts.mode in ("independent", "estm") and i in skip:
                 continue
             with precision():
                 image, feats = store.get(i)
@@ -307,6 +309,48 @@ def _settings(scan: Scan, opts: DepthOptions, weights, config_name: str | None) 
             "names": scan.names}
 
 
+MEMORY_DIR = ".estm-memory"  # the last N memory entries of an unfinished ESTM run, so it can resume exactly
+
+
+def _save_memory_entry(out_dir: Path, entry: MemoryEntry) -> None:
+    path = out_dir / MEMORY_DIR / f"{entry.name}.pt"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        torch.save({"key": entry.key.cpu(), "value": entry.value.cpu(),
+                    "camera_to_world": entry.camera_to_world.cpu(), "name": entry.name}, tmp)
+
+
+def _prune_memory_entries(out_dir: Path, keep: set[str]) -> None:
+    for path in (out_dir / MEMORY_DIR).glob("*.pt"):
+        if path.stem not in keep:
+            path.unlink(missing_ok=True)
+
+
+def _resumable_estm_prefix(scan: Scan, opts: DepthOptions, out_dir: Path, device: torch.device
+                           ) -> tuple[frozenset[int], TemporalMemory]:
+    """Frames an interrupted ESTM run finished (a prefix in processing order) and its memory at that point.
+
+    Falls back to a full restart (empty skip) when an entry the memory needs is missing.
+    """
+    memory = TemporalMemory(opts.memory_size)
+    done = []
+    for i in _sources(scan, opts):
+        if not (out_dir / f"{scan.names[i]}.conf.npy").is_file():
+            break
+        done.append(i)
+    needed = done[len(done) - opts.memory_size:] if opts.memory_size else []
+    for i in needed:
+        path = out_dir / MEMORY_DIR / f"{scan.names[i]}.pt"
+        try:
+            doc = torch.load(path, map_location=device, weights_only=True)
+        except (OSError, RuntimeError, EOFError):
+            log.info("depth: memory entry %s missing, ESTM restarts from the first frame", path.name)
+            return frozenset(), TemporalMemory(opts.memory_size)
+        memory.add(MemoryEntry(doc["key"], doc["value"], doc["camera_to_world"], doc["name"]))
+    log.info("depth: resuming ESTM after %d finished frames", len(done))
+    return frozenset(done), memory
+
+
 def _read_json(path: Path) -> dict | None:
     try:
         return json.loads(path.read_text())
@@ -338,6 +382,7 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     settings = _settings(scan, opts, weights if estimator else None, estimator.config.name if estimator else None)
     summary_path, partial_path = out_dir / "depth.json", out_dir / "depth.partial.json"
     skip: frozenset[int] = frozenset()
+    memory = TemporalMemory(opts.memory_size) if opts.mode == "estm" else None
     if resume:
         previous = _read_json(summary_path)
         if previous and previous.get("settings") == settings and all(
@@ -346,17 +391,23 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
             return previous
         partial = _read_json(partial_path)
         if partial and partial.get("settings") == settings and opts.mode in ("planesweep", "independent"):
-            skip = frozenset(i for i, n in enumerate(scan.names) if (out_dir / f"{n}.npy").is_file())
+            skip = frozenset(i for i, n in enumerate(scan.names) if (out_dir / f"{n}.conf.npy").is_file())
+        elif partial and partial.get("settings") == settings and opts.mode == "estm":
+            skip, memory = _resumable_estm_prefix(scan, opts, out_dir, estimator.device)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json_atomic(partial_path, {"settings": settings})
     started = time.perf_counter()
     if estimator is None:
         results = run_planesweep(scan, opts, skip)
     else:
-        results = estimator.run(scan, opts, skip=skip)
+        results = estimator.run(scan, opts, memory=memory, skip=skip)
     frames = {}
     for r in results:
+        if memory is not None:  # the entry first: a frame whose maps exist always has its entry on disk
+            _save_memory_entry(out_dir, memory.entries[-1])
         save_depth_map(out_dir, r.name, r.depth, r.confidence)
+        if memory is not None:
+            _prune_memory_entries(out_dir, keep=set(memory.names))
         frames[r.index] = {"name": r.name, "sources": [scan.frames[j].name for j in r.sources],
                            "valid_fraction": float((r.depth > 0).mean())}
         if progress:
@@ -375,5 +426,6 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
                "seconds_per_frame": seconds / computed}
     write_json_atomic(summary_path, summary)
     partial_path.unlink(missing_ok=True)
+    shutil.rmtree(out_dir / MEMORY_DIR, ignore_errors=True)
     log.info("depth: %d frames in %.1f s (%s)", len(frames), seconds, opts.mode)
     return summary

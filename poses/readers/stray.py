@@ -28,6 +28,8 @@ from recon.errors import ScanFormatError
 from recon.geometry import quaternion_to_rotation
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
+from ._common import depth_size
+
 NAME = "stray"
 DECODE_MAX_SIZE = 960
 log = logging.getLogger(__name__)
@@ -126,4 +128,8 @@ def read(path: Path) -> Scan:
     if not frames:
         raise ScanFormatError(f"{path}: odometry.csv names no frame of rgb.mp4")
     extra = {"confidence_dir": str(path / "confidence")} if (path / "confidence").is_dir() else {}
-    return Scan(intr, frames, ScanMetadata(metric_scale=True, source_format=NAME, extra=extra), root=path)
+    first_depth = next((f.depth_path for f in frames if f.depth_path is not None), None)
+    # ARKit depth is the colour camera's view at a lower resolution: the same camera, rescaled.
+    depth_intr = intr.resized(*depth_size(first_depth)) if first_depth is not None else None
+    return Scan(intr, frames, ScanMetadata(metric_scale=True, source_format=NAME, extra=extra), root=path,
+                depth_intrinsics=None if depth_intr == intr else depth_intr)
