@@ -96,3 +96,14 @@ def build_model(checkpoint: Checkpoint) -> torch.nn.Module:
         first = str(exc).splitlines()[0]
         raise ReconError(f"checkpoint weights do not fit the {checkpoint.config.name!r} network: {first}") from None
     return model.eval()
+
+
+INDOOR_DEPTH_RANGE = (0.25, 6.0)  # metres: planes for a metric indoor scan that states no range of its own
+
+
+def trained_depth_range(weights: str | os.PathLike | None) -> tuple[float, float] | None:
+    """The depth range a checkpoint's training data spanned (metadata `data.depth_range`), if it says."""
+    if weights is None:
+        return None
+    rng = (load_checkpoint(weights).metadata.get("data") or {}).get("depth_range")
+    return (float(rng[0]), float(rng[1])) if rng else None

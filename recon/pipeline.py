@@ -279,15 +279,26 @@ class Pipeline:
     def stage_depth(self) -> dict:
         from depth.inference import DepthOptions, estimate_depth
 
+        from depth.checkpoint import INDOOR_DEPTH_RANGE, trained_depth_range
+
         cfg = self.config
         scan = self.keyframe_scan()
-        opts = DepthOptions(mode=cfg.mode, window=cfg.window, memory_size=cfg.memory_size,
-                            depth_range=cfg.depth_range, device=cfg.device)
         weights = cfg.weights or (None if cfg.mode == "planesweep" else "compact")  # the shipped default
+        depth_range = cfg.depth_range
+        if depth_range is None and scan.metadata.depth_range is None:
+            if not scan.metadata.metric_scale:
+                raise ReconError(f"{cfg.input}: the scan's scale is unknown and it states no depth range: "
+                                 "pass --depth-range MIN MAX in its units")
+            # A recorded RGB-D scan rarely says; its GT depth must not decide it (that would leak ground truth).
+            depth_range = trained_depth_range(weights) or INDOOR_DEPTH_RANGE
+            log.info("depth: no depth range given, sweeping %.2f-%.2f m", *depth_range)
+        opts = DepthOptions(mode=cfg.mode, window=cfg.window, memory_size=cfg.memory_size,
+                            depth_range=depth_range, device=cfg.device)
         with self._bar("depth", len(scan)) as bar:
             summary = estimate_depth(scan, self.out / "depth", opts, weights=weights, resume=True, progress=bar)
         return {"mode": cfg.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],
-                "weights": summary.get("weights"), "config": summary.get("config")}
+                "weights": summary.get("weights"), "config": summary.get("config"),
+                "depth_range": list(opts.depth_range) if opts.depth_range else scan.metadata.depth_range}
 
     def stage_fusion(self) -> dict:
         from fusion.mesh import save_mesh
