@@ -34,14 +34,24 @@ class MeshEvalConfig:
 
 
 def sample_points(mesh: trimesh.Trimesh, n: int, seed: int) -> np.ndarray:
-    """n points uniformly on the surface (area-weighted), reproducible for a given seed."""
+    """n points uniformly on the surface (area-weighted), reproducible for a given seed.
+
+    Each face's corners, then the faces, are put in a canonical (lexicographic) order first, so the
+    same surface stored in another face or corner order (Open3D's hash map does that) gives the
+    same points.
+    """
     rng = np.random.default_rng(seed)
-    area = mesh.area_faces
+    tri = mesh.triangles
+    corner_order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # per face: by x, then y, then z
+    tri = np.take_along_axis(tri, corner_order[..., None], axis=1)
+    order = np.lexsort(tri.reshape(len(tri), -1).T[::-1])
+    tri = tri[order]
+    area = mesh.area_faces[order]
     face = rng.choice(len(area), size=n, p=area / area.sum())
     r1, r2 = rng.random(n), rng.random(n)
     flip = r1 + r2 > 1
     r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
-    tri = mesh.triangles[face]
+    tri = tri[face]
     return tri[:, 0] + r1[:, None] * (tri[:, 1] - tri[:, 0]) + r2[:, None] * (tri[:, 2] - tri[:, 0])
 
 

@@ -151,3 +151,14 @@ def test_umeyama_recovers_similarity():
     R = Rotation.random(random_state=5).as_matrix()
     s, R2, t = umeyama(src, 2.5 * src @ R.T + [1, 2, 3])
     assert s == pytest.approx(2.5) and np.allclose(R2, R) and np.allclose(t, [1, 2, 3])
+
+
+def test_sampling_ignores_face_and_corner_order():
+    """Open3D may store the same surface in another order; the protocol's points must not change."""
+    from fusion.evaluate import sample_points
+
+    mesh = box_room_mesh().subdivide().subdivide()
+    faces = np.roll(mesh.faces[np.random.default_rng(0).permutation(len(mesh.faces))], 1, axis=1)
+    shuffled = trimesh.Trimesh(mesh.vertices, faces, process=False)
+    assert np.array_equal(sample_points(mesh, 5000, 3), sample_points(shuffled, 5000, 3))
+    assert not np.array_equal(sample_points(mesh, 5000, 3), sample_points(mesh, 5000, 4))
