@@ -28,3 +28,14 @@ def iclnuim(shared_data) -> Path:
     if not p.is_dir():
         pytest.skip(f"{p} not found")
     return p
+
+
+@pytest.fixture
+def single_torch_thread():
+    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from recon.geometry import invert_pose, opencv_to_opengl
-from recon.io import depth_to_png_array, write_image
+from recon.io import write_image
 from recon.scan import Scan
 
 

@@ -15,13 +15,7 @@ from recon.errors import ReconError
 from recon.io import load_confidence_map, load_depth_map
 
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -11,13 +11,7 @@ from depth.model.volumes import soft_argmax_depth
 from recon.errors import ReconError
 
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def _window(cfg, batch=1, views=3):

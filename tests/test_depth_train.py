@@ -9,13 +9,7 @@ from depth.synthetic_planes import plane_scan
 from depth.train import TrainOptions, train
 from recon.errors import ReconError
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    """Small tensors: one thread avoids OpenMP hand-offs on a shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 CLIP = ClipOptions(width=TINY.image_width, height=TINY.image_height, augment=False)

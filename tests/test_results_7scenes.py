@@ -1,0 +1,63 @@
+"""The zero-shot evaluation script (issue 6) end to end on a few 7-Scenes frames, and the shipped weights."""
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from depth.checkpoint import WEIGHTS_DIR, load_checkpoint, save_checkpoint
+from depth.config import COMPACT
+from depth.model import ESTNet
+
+
+@pytest.fixture(scope="module")
+def random_weights(tmp_path_factory):
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("w") / "random.pt"
+    return save_checkpoint(path, ESTNet(COMPACT), COMPACT, {"data": {"depth_range": [0.3, 5.0]}})
+
+
+def test_evaluation_script_on_five_frames(sevenscenes, random_weights, tmp_path):
+    script = Path(__file__).resolve().parents[1] / "examples" / "evaluate_7scenes.py"
+    spec = importlib.util.spec_from_file_location("evaluate_7scenes", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    main = module.main
+
+    out_json, out_md = tmp_path / "r.json", tmp_path / "r.md"
+    rc = main([f"--data={sevenscenes}", f"--weights={random_weights}", "--max-frames", "4", "--threads", "1",
+               "--rows", "planesweep,estm_m2", "--out", str(tmp_path / "run"), "--json", str(out_json),
+               "--markdown", str(out_md)])
+    assert rc == 0
+    res = json.loads(out_json.read_text())
+    assert res["frames"] == 4 and res["depth_range"] == [0.3, 5.0]  # the checkpoint's training range
+    assert res["eval_range"] == [0.001, 10.0]
+    for row in ("planesweep", "estm_m2"):
+        m = res["rows"][row]
+        assert m["frames"] == 4 and 0 < m["abs_rel"] < 5 and 0 <= m["a1"] <= 1 and m["seconds_per_frame"] > 0
+        assert math.isfinite(m["flicker"]) and math.isfinite(m["mae_std"])
+    assert res["rows"]["estm_m2"]["coverage"] == pytest.approx(1.0)  # the network is dense
+    assert res["rows"]["planesweep"]["coverage"] < 0.9  # the plane sweep refuses blank areas
+    mesh = res["mesh"]
+    assert 0 <= mesh["fscore"] <= 1 and mesh["acc"] > 0 and mesh["gt_points"] > 1000
+    md = out_md.read_text()
+    assert "| planesweep |" in md and "0.1465" in md and "80.36%" in md and "F-score" in md
+    assert (tmp_path / "run" / "mesh_gt_fusion.ply").is_file()
+
+
+def test_shipped_weights_load_and_describe_themselves():
+    path = WEIGHTS_DIR / "compact.pt"
+    if not path.is_file():
+        pytest.skip("no shipped weights in this revision")
+    assert path.stat().st_size <= 25 * 1024 * 1024
+    ck = load_checkpoint("compact", expected=COMPACT)
+    assert not ck.training  # weights only, no optimiser state
+    meta = ck.metadata
+    for key in ("data", "steps", "hardware", "validation"):
+        assert meta.get(key), key
+    assert meta["steps"] > 0 and len(meta["data"]["depth_range"]) == 2
+    net = ESTNet(COMPACT)
+    net.load_state_dict(ck.state_dict)
+    assert all(torch.isfinite(p).all() for p in net.parameters())
