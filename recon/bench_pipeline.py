@@ -19,7 +19,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from apps.commands.demo import ensure_example, pick_mode
+    from apps.commands.demo import ensure_example
+    from apps.commands.run import pick_mode
     from recon.pipeline import Pipeline, RunConfig
 
     mode = pick_mode(args.mode, args.weights)

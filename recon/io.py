@@ -20,6 +20,8 @@ import numpy as np
 from .errors import ReconError
 
 MM_PER_M = 1000.0
+_UMASK = os.umask(0)
+os.umask(_UMASK)
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -133,6 +135,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes private files; outputs get the usual permissions
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -154,6 +157,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
         raise ReconError(f"{path}: exists and is not a folder")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~_UMASK)
     try:
         yield tmp
     except BaseException:

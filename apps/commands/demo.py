@@ -37,27 +37,10 @@ def ensure_example() -> Path:
     return EXAMPLE_DIR
 
 
-def pick_mode(requested: str | None, weights: str | None) -> str:
-    """ESTM when weights are available; otherwise the classical baseline, said out loud."""
-    if requested:
-        return requested
-    from depth.checkpoint import resolve_weights
-    from recon.errors import ReconError
-
-    try:
-        resolve_weights(weights or "compact")
-        return "estm"
-    except ReconError:
-        print("note: no trained depth weights ship yet; the demo uses the classical plane-sweep depth "
-              "(pass --weights PATH to use a checkpoint from `recon train`)")
-        return "planesweep"
-
-
 def run(args):
     from apps.commands.run import config_from_args, execute
 
     example = ensure_example()
-    args.mode = pick_mode(args.mode, args.weights)
     if args.colmap:
         args.poses = "colmap"
         source = example / "video.mp4"

@@ -18,7 +18,8 @@ def add_pipeline_args(p, with_input: bool = True) -> None:
                    help="SfM mapper (the other one is the fallback)")
     g.add_argument("--gt-poses", default=None, help="scan whose poses score SfM's (frames matched by name)")
     g = p.add_argument_group("depth")
-    g.add_argument("--mode", choices=["estm", "joint", "independent", "planesweep"], default="estm")
+    g.add_argument("--mode", choices=["estm", "joint", "independent", "planesweep"], default=None,
+                   help="default: estm with the shipped (or --weights) network; planesweep when there are none")
     g.add_argument("--weights", default=None, help="network weights: a shipped name or a checkpoint path "
                                                    "(default: the shipped compact weights)")
     g.add_argument("--window", choices=["offline", "online"], default="offline",
@@ -47,13 +48,30 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+def pick_mode(requested: str | None, weights: str | None) -> str:
+    """ESTM when weights are available; otherwise the classical plane sweep, said out loud."""
+    if requested:
+        return requested
+    from depth.checkpoint import resolve_weights
+    from recon.errors import ReconError
+
+    try:
+        resolve_weights(weights or "compact")
+        return "estm"
+    except ReconError:
+        print("note: no trained depth weights ship yet, so depth comes from the classical plane sweep "
+              "(pass --weights PATH to use a checkpoint from `recon train`)")
+        return "planesweep"
+
+
 def config_from_args(args, input_path: str, out: str):
     from recon.pipeline import RunConfig
 
     return RunConfig(
         input=input_path, out=out, format=getattr(args, "format", "auto"), poses=args.poses, mapper=args.mapper,
         start=getattr(args, "start", 0), stride=getattr(args, "stride", 1), max_frames=getattr(args, "max_frames", None),
-        keyframe_threshold=args.keyframe_threshold, mode=args.mode, weights=args.weights, window=args.window,
+        keyframe_threshold=args.keyframe_threshold, mode=pick_mode(args.mode, args.weights), weights=args.weights,
+        window=args.window,
         memory_size=args.memory, depth_range=tuple(args.depth_range) if args.depth_range else None,
         device=args.device, voxel_size=args.voxel_size, fusion_depth_max=args.depth_max,
         min_confidence=args.min_confidence, gt_mesh=args.gt_mesh, gt_poses=args.gt_poses)
