@@ -33,7 +33,7 @@ from recon.errors import ReconError
 from recon.io import atomic_path, load_depth_map, save_depth_map, write_json_atomic
 from recon.scan import Scan
 
-from .checkpoint import build_model, load_checkpoint
+from .checkpoint import build_model, load_checkpoint, weights_digest
 from .config import get_config
 from .model import ESTNet, MemoryEntry
 from .planesweep import PlaneSweepOptions, plane_sweep_depth, to_gray
@@ -180,17 +180,22 @@ class _FrameStore:
 class DepthEstimator:
     """A loaded network on a device, ready to run the learned modes over scans."""
 
-    def __init__(self, model: ESTNet, device: torch.device | str = "cpu"):
+    def __init__(self, model: ESTNet, device: torch.device | str = "cpu",
+                 trained_depth_range: tuple[float, float] | None = None):
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.config = model.cfg
+        # The planes the network was trained on: its context volume is tied to plane indices, so it
+        # should sweep the same range unless the caller says otherwise.
+        self.trained_depth_range = trained_depth_range
 
     @classmethod
     def from_weights(cls, weights: str | os.PathLike, device: str = "auto", config: str | None = None,
                      ) -> "DepthEstimator":
         """Load shipped weights by name (`compact`) or a checkpoint path; `config` names the expected config."""
         ckpt = load_checkpoint(weights, expected=get_config(config) if config else None)
-        return cls(build_model(ckpt), resolve_device(device))
+        rng = (ckpt.metadata.get("data") or {}).get("depth_range")
+        return cls(build_model(ckpt), resolve_device(device), tuple(float(x) for x in rng) if rng else None)
 
     def _pose(self, scan: Scan, idx) -> torch.Tensor:
         return torch.from_numpy(scan.camera_to_world[idx]).float().to(self.device)
@@ -305,6 +310,7 @@ def _settings(scan: Scan, opts: DepthOptions, weights, config_name: str | None) 
             "source_baseline": opts.source_baseline, "min_baseline": opts.min_baseline,
             "source_window": opts.source_window,
             "joint_group": opts.joint_group, "precision": opts.precision, "config": config_name, "weights": str(weights) if weights else None,
+            "weights_digest": weights_digest(weights) if weights else None,
             "planesweep": asdict(opts.planesweep) if opts.mode == "planesweep" else None,
             "names": scan.names}
 
@@ -379,6 +385,8 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
             estimator = DepthEstimator.from_weights(weights, opts.device, opts.config)
         if opts.memory_size is None:
             opts = replace(opts, memory_size=estimator.config.memory_size)
+        if opts.depth_range is None and estimator.trained_depth_range is not None:
+            opts = replace(opts, depth_range=estimator.trained_depth_range)
     settings = _settings(scan, opts, weights if estimator else None, estimator.config.name if estimator else None)
     summary_path, partial_path = out_dir / "depth.json", out_dir / "depth.partial.json"
     skip: frozenset[int] = frozenset()

@@ -64,7 +64,7 @@ class RunConfig:
     report_frames: int = 6
 
     def stage_options(self, stage: str) -> dict:
-        """The options a stage's outputs depend on (device choice is not among them)."""
+        """The options a stage's outputs depend on (device choice is not among them; the weights' content is)."""
         keys = {
             "scan": ("input", "format", "poses", "mapper", "start", "stride", "max_frames"),
             "evaluate": ("eval_max_depth", "gt_poses"),
@@ -73,7 +73,12 @@ class RunConfig:
             "reference": ("gt_mesh", "voxel_size", "fusion_depth_max"),
             "report": ("report_frames",),
         }[stage]
-        return {k: getattr(self, k) for k in keys}
+        options = {k: getattr(self, k) for k in keys}
+        if stage == "depth" and self.mode != "planesweep":
+            from depth.checkpoint import weights_digest
+
+            options["weights_digest"] = weights_digest(self.weights or "compact")
+        return options
 
 
 @dataclass
@@ -285,12 +290,13 @@ class Pipeline:
         scan = self.keyframe_scan()
         weights = cfg.weights or (None if cfg.mode == "planesweep" else "compact")  # the shipped default
         depth_range = cfg.depth_range
-        if depth_range is None and scan.metadata.depth_range is None:
+        learned_range = trained_depth_range(weights) if cfg.mode != "planesweep" else None
+        if depth_range is None and learned_range is None and scan.metadata.depth_range is None:
             if not scan.metadata.metric_scale:
                 raise ReconError(f"{cfg.input}: the scan's scale is unknown and it states no depth range: "
                                  "pass --depth-range MIN MAX in its units")
             # A recorded RGB-D scan rarely says; its GT depth must not decide it (that would leak ground truth).
-            depth_range = trained_depth_range(weights) or INDOOR_DEPTH_RANGE
+            depth_range = INDOOR_DEPTH_RANGE
             log.info("depth: no depth range given, sweeping %.2f-%.2f m", *depth_range)
         opts = DepthOptions(mode=cfg.mode, window=cfg.window, memory_size=cfg.memory_size,
                             depth_range=depth_range, device=cfg.device)
@@ -298,7 +304,7 @@ class Pipeline:
             summary = estimate_depth(scan, self.out / "depth", opts, weights=weights, resume=True, progress=bar)
         return {"mode": cfg.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],
                 "weights": summary.get("weights"), "config": summary.get("config"),
-                "depth_range": list(opts.depth_range) if opts.depth_range else scan.metadata.depth_range}
+                "depth_range": summary.get("depth_range")}
 
     def stage_fusion(self) -> dict:
         from fusion.mesh import save_mesh

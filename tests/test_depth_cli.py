@@ -36,8 +36,9 @@ def test_recon_depth_keyframes_only(scan_dir, tmp_path):
     assert names == ["000000", "000002", "000004"]
 
 
-def test_recon_depth_without_weights_points_to_planesweep(scan_dir, tmp_path, capsys):
-    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "estm"]) == 2
+def test_recon_depth_with_missing_weights_points_to_planesweep(scan_dir, tmp_path, capsys):
+    # the shipped `compact` weights are the default now; a name that ships nothing must still explain itself
+    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "estm", "--weights", "nosuch"]) == 2
     err = capsys.readouterr().err
     assert "recon: error:" in err and "planesweep" in err and "--weights" in err
 

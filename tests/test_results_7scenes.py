@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from depth.checkpoint import PREVIEW_WEIGHTS as PREVIEW
 from depth.checkpoint import WEIGHTS_DIR, load_checkpoint, save_checkpoint
 from depth.config import COMPACT
 from depth.model import ESTNet
@@ -48,11 +49,11 @@ def test_evaluation_script_on_five_frames(sevenscenes, random_weights, tmp_path)
 
 
 def test_shipped_weights_load_and_describe_themselves():
-    path = WEIGHTS_DIR / "compact.pt"
+    path = WEIGHTS_DIR / f"{PREVIEW}.pt"
     if not path.is_file():
         pytest.skip("no shipped weights in this revision")
     assert path.stat().st_size <= 25 * 1024 * 1024
-    ck = load_checkpoint("compact", expected=COMPACT)
+    ck = load_checkpoint(PREVIEW, expected=COMPACT)
     assert not ck.training  # weights only, no optimiser state
     meta = ck.metadata
     for key in ("data", "steps", "hardware", "validation"):

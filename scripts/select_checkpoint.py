@@ -1,0 +1,88 @@
+"""Pick a training checkpoint on held-out data only: unseen synthetic rooms and ICL-NUIM (never 7-Scenes).
+
+    python scripts/select_checkpoint.py runs/compact_cpu/step_001200.pt runs/compact_cpu/step_001300.pt \
+        --out runs/select --baselines
+
+Each checkpoint runs ESTM (memory 2) on every held-out scan through `recon.results.depth_table`
+(the same code as the 7-Scenes table); `--baselines` adds plane sweep and independent rows
+for the comparison the shipping rule needs (ship only if ESTM beats the plane sweep here).
+Held-out synthetic rooms: seeds 910001 and 910002 (training streams use seeds below 100,
+validation clips 900001/900002), 30 frames at 3 fps with realistic sensor effects, 320x256.
+ICL-NUIM living room 1: every 5th frame at 320x256. Writes summary.json and prints a table.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+HELDOUT_SEEDS = (910001, 910002)
+DEPTH_RANGE = (0.25, 6.0)
+ICL = ROOT.parent / "shared" / "data" / "iclnuim-livingroom1"
+
+
+def heldout_scans(cache: Path):
+    from poses.readers import open_scan
+    from recon.synthetic import SensorEffects, SynthConfig, write_synthetic_scan
+
+    scans = {}
+    for seed in HELDOUT_SEEDS:
+        folder = cache / f"synthetic_{seed}"
+        if not (folder / "scan.json").is_file():
+            write_synthetic_scan(SynthConfig(seed=seed, frames=30, fps=3.0, width=320, height=256,
+                                             effects=SensorEffects.realistic()), folder)
+        scans[f"synthetic_{seed}"] = open_scan(folder)
+    if ICL.is_dir():
+        scans["iclnuim_s5"] = open_scan(ICL).select(0, 5).resized(320, 256)
+    return scans
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoints", nargs="*")
+    p.add_argument("--out", default="runs/select")
+    p.add_argument("--baselines", action="store_true", help="also run planesweep and independent (first checkpoint)")
+    p.add_argument("--threads", type=int, default=None)
+    args = p.parse_args(argv)
+
+    import torch
+
+    from recon.results import TableOptions, depth_table
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    scans = heldout_scans(out / "scans")
+    summary_path = out / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    jobs = [(Path(c).stem, c, ("estm_m2",)) for c in args.checkpoints]
+    if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
+        jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
+        jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
+    for name, ck, rows in jobs:
+        for scan_name, scan in scans.items():
+            opts = TableOptions(weights=ck, rows=rows, depth_range=DEPTH_RANGE, mesh=False)
+            res = depth_table(scan, out / name / scan_name, opts, log=lambda s: print(f"{name} {scan_name}: {s}"))
+            for row, m in res["rows"].items():
+                key = "planesweep" if row == "planesweep" else f"{name}:{row}"
+                summary.setdefault(key, {})[scan_name] = {k: m[k] for k in
+                                                          ("abs_rel", "abs", "rmse", "a1", "flicker", "coverage", "abs_rel_covered",
+                                                           "seconds_per_frame")}
+            summary_path.write_text(json.dumps(summary, indent=2))
+    names = list(scans)
+    print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25" for n in names) + " | mean Abs Rel |")
+    print("|---|" + "---|" * (len(names) + 1))
+    for key, per in summary.items():
+        cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%}" if n in per else "-" for n in names]
+        mean = sum(per[n]["abs_rel"] for n in names if n in per) / max(sum(n in per for n in names), 1)
+        print(f"| {key} | " + " | ".join(cells) + f" | {mean:.4f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
