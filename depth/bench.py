@@ -28,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--memory", type=int, default=None, metavar="N", help="ESTM memory length (default 2)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument("--precision", choices=("fp32", "bf16"), default="fp32", help="network arithmetic")
+    parser.add_argument("--compile", action="store_true",
+                        help="torch.compile the network (compiled during the warm-up frames, which are not timed)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default 2)")
     parser.add_argument("--no-baseline", action="store_true", help="skip timing the plane-sweep baseline")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -58,7 +60,7 @@ def _peak_mb(device: torch.device) -> float:
 
 
 def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None = None, device: str = "auto",
-            baseline: bool = True, precision: str = "fp32") -> dict:
+            baseline: bool = True, precision: str = "fp32", compile: bool = False) -> dict:
     from .config import get_config
     from .inference import DepthEstimator, DepthOptions, resolve_device, run_planesweep
     from .model import ESTNet
@@ -76,7 +78,7 @@ def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None
     gmacs = count_gmacs(cfg, mem_n)
     estimator = DepthEstimator(model, dev)
     scan = plane_scan(frames + 3, cfg.image_width, cfg.image_height, step=0.06)
-    opts = DepthOptions(mode=mode, memory_size=mem_n, device=str(dev.type), precision=precision)
+    opts = DepthOptions(mode=mode, memory_size=mem_n, device=str(dev.type), precision=precision, compile=compile)
     # One continuous pass (the ESTM memory fills as in real use); the clock starts after 3 warm-up frames.
     start = cpu_start = None
     count = 0
@@ -92,7 +94,7 @@ def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None
         torch.cuda.synchronize(dev)
     seconds = (time.perf_counter() - start) / count
     cpu_seconds = (time.process_time() - cpu_start) / count
-    out = {"config": cfg.name, "mode": mode, "precision": precision, "device": torch.cuda.get_device_name(dev) if dev.type == "cuda"
+    out = {"config": cfg.name, "mode": mode, "precision": precision, "compile": compile, "device": torch.cuda.get_device_name(dev) if dev.type == "cuda"
            else f"cpu ({torch.get_num_threads()} threads)", "params_m": round(params / 1e6, 3),
            "gmacs": round(gmacs, 2), "peak_mem_mb": round(_peak_mb(dev), 1), "s_per_frame": round(seconds, 4),
            "cpu_s_per_frame": round(cpu_seconds, 4), "load_average": round(os.getloadavg()[0], 2),
@@ -114,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(max(1, args.threads))
     try:
         result = measure(args.config, args.mode, args.frames, args.memory, args.device, not args.no_baseline,
-                         args.precision)
+                         args.precision, args.compile)
     finally:
         torch.set_num_threads(threads)
     if args.json:

@@ -1,7 +1,9 @@
 """Depth for every frame of a canonical scan: ESTM, joint, independent or classical plane sweep.
 
-Frames are resized to the network size (intrinsics follow through `Scan.resized`), the
-depth is predicted there and resized back to the scan's size. Each frame's sources are
+Frames are fitted to the network size (intrinsics follow through `Scan.resized` and
+`Scan.cropped`): stretched whole, or scaled to cover it and centre-cropped so the aspect ratio
+is kept (`DepthOptions.fit`). The depth is predicted there and resampled back to the scan's
+size; with `crop`, pixels outside the window get depth 0 (invalid) and confidence 0. Each frame's sources are
 chosen by pose distance (`depth.selection.select_sources`). Results go to
 `recon.io.save_depth_map` (depth + confidence per frame) plus a `depth.json` summary.
 
@@ -43,6 +45,7 @@ log = logging.getLogger(__name__)
 
 MODES = ("estm", "joint", "independent", "planesweep")
 PRECISIONS = ("fp32", "bf16")
+FITS = ("stretch", "crop")
 
 
 @dataclass
@@ -61,6 +64,8 @@ class DepthOptions:
     device: str = "auto"
     config: str | None = None  # expected network config name; None accepts the checkpoint's
     precision: str = "fp32"  # "bf16": autocast the network to bfloat16 (CUDA, and CPUs with bf16 units)
+    fit: str = "stretch"  # "stretch" the frame to the network size, or "crop" it (aspect kept, borders lost)
+    compile: bool = False  # torch.compile the network (a one-off compile of about a minute, then faster frames)
     planesweep: PlaneSweepOptions = field(default_factory=PlaneSweepOptions)
 
 
@@ -120,6 +125,41 @@ def scan_depth_range(scan: Scan, override: tuple[float, float] | None = None) ->
     return lo, hi
 
 
+def network_view(scan: Scan, width: int, height: int, fit: str = "stretch") -> Scan:
+    """`scan` as the network sees it: width x height images, intrinsics following.
+
+    "stretch" resizes the whole frame (pixels turn non-square when the aspect ratios differ);
+    "crop" scales the frame to cover width x height and keeps the centre window.
+    """
+    if fit not in FITS:
+        raise ReconError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
+    if fit == "stretch":
+        return scan.resized(width, height)
+    W, H = scan.intrinsics.size
+    scale = max(width / W, height / H)
+    cover_w, cover_h = max(width, round(W * scale)), max(height, round(H * scale))
+    return scan.resized(cover_w, cover_h).cropped((cover_w - width) // 2, (cover_h - height) // 2, width, height)
+
+
+def to_scan_pixels(maps: torch.Tensor, net_scan: Scan, size: tuple[int, int]) -> torch.Tensor:
+    """Resample network-size maps back onto the scan's pixels (bilinear).
+
+    maps: (B, C, h, w) on the grid of `net_scan` (from `network_view`); size: the scan's (width, height).
+    Returns (B, C, H, W) maps, zero at pixels outside the network window (a crop).
+    """
+    W, H = size
+    cover_w, cover_h = net_scan.output_size
+    left, top, w, h = net_scan.crop or (0, 0, cover_w, cover_h)
+    # pixel centre u of the scan -> continuous coordinate in the network window (0 .. w at its edges)
+    x = (torch.arange(W, dtype=torch.float32, device=maps.device) + 0.5) * (cover_w / W) - left
+    y = (torch.arange(H, dtype=torch.float32, device=maps.device) + 0.5) * (cover_h / H) - top
+    inside = ((y >= 0) & (y <= h))[:, None] & ((x >= 0) & (x <= w))[None, :]
+    grid = torch.stack(torch.meshgrid(x / w * 2 - 1, y / h * 2 - 1, indexing="xy"), -1)
+    out = F.grid_sample(maps.float(), grid[None].expand(maps.shape[0], -1, -1, -1), mode="bilinear",
+                        padding_mode="border", align_corners=False)
+    return out * inside
+
+
 def _check_scan(scan: Scan) -> None:
     scan.validate()  # poses: shape, finite, rigid
     if len(scan) < 3:
@@ -160,8 +200,8 @@ def _sources(scan: Scan, opts: DepthOptions) -> dict[int, list[int]]:
 class _FrameStore:
     """Network-size images and matching features of recently used frames (small LRU)."""
 
-    def __init__(self, model: ESTNet, scan: Scan, device: torch.device, capacity: int = 12):
-        self.model, self.scan, self.device, self.capacity = model, scan, device, capacity
+    def __init__(self, model: ESTNet, features: Callable, scan: Scan, device: torch.device, capacity: int = 12):
+        self.model, self.features, self.scan, self.device, self.capacity = model, features, scan, device, capacity
         self._cache: collections.OrderedDict[int, tuple[torch.Tensor, torch.Tensor]] = collections.OrderedDict()
 
     def get(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -170,7 +210,7 @@ class _FrameStore:
             self._cache.move_to_end(i)
             return self._cache[i]
         image = self.model.normalise(_image_tensor(self.scan, i)[None].to(self.device))
-        item = (image, self.model.frame_features(image))
+        item = (image, self.features(image))
         self._cache[i] = item
         if len(self._cache) > self.capacity:
             self._cache.popitem(last=False)
@@ -188,6 +228,20 @@ class DepthEstimator:
         # The planes the network was trained on: its context volume is tied to plane indices, so it
         # should sweep the same range unless the caller says otherwise.
         self.trained_depth_range = trained_depth_range
+        self._compiled: tuple[Callable, Callable, Callable] | None = None
+
+    def network_calls(self, compile: bool = False) -> tuple[Callable, Callable, Callable]:
+        """The network's (frame_features, prepare, finish), compiled by torch.compile when asked (once).
+
+        Shapes are static (one network size), so compiling pays off: the ESTM loop calls these
+        three per frame, and the memory's growth from 0 to N entries costs N + 1 compiles.
+        """
+        m = self.model
+        if not compile:
+            return m.frame_features, m.prepare, m.finish
+        if self._compiled is None:
+            self._compiled = tuple(torch.compile(f, dynamic=False) for f in (m.frame_features, m.prepare, m.finish))
+        return self._compiled
 
     @classmethod
     def from_weights(cls, weights: str | os.PathLike, device: str = "auto", config: str | None = None,
@@ -214,17 +268,18 @@ class DepthEstimator:
         lo, hi = scan_depth_range(scan, opts.depth_range)
         sources = _sources(scan, opts)
         cfg = self.config
-        net_scan = scan.resized(cfg.image_width, cfg.image_height)
+        net_scan = network_view(scan, cfg.image_width, cfg.image_height, opts.fit)
         K = torch.from_numpy(net_scan.intrinsics.K).float()[None].to(self.device)
         depth_range = torch.tensor([[lo, hi]], device=self.device)
-        out_size = (scan.intrinsics.height, scan.intrinsics.width)
-        store = _FrameStore(self.model, net_scan, self.device)
+        view = (net_scan, scan.intrinsics.size)
+        features, prepare, finish = self.network_calls(opts.compile)
+        store = _FrameStore(self.model, features, net_scan, self.device)
         # Autocast is entered per network call, never across a `yield` (it would leak into the caller).
         def precision():
             return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=opts.precision == "bf16")
 
         if opts.mode == "joint":
-            yield from self._run_joint(scan, store, sources, K, depth_range, out_size, opts, precision)
+            yield from self._run_joint(scan, store, sources, K, depth_range, view, opts, precision, prepare, finish)
             return
         if memory is None:
             memory = TemporalMemory(cfg.memory_size if opts.memory_size is None else opts.memory_size)
@@ -234,15 +289,16 @@ class DepthEstimator:
             with precision():
                 image, feats = store.get(i)
                 src_feats = torch.stack([store.get(j)[1] for j in sources[i]], 1)
-                state = self.model.prepare(image, feats, src_feats, K, self._pose(scan, [i]),
-                                           self._pose(scan, sources[i])[None], depth_range)
-                out = self.model.finish(state, memory.entries if opts.mode == "estm" else [])
+                state = prepare(image, feats, src_feats, K, self._pose(scan, [i]),
+                                self._pose(scan, sources[i])[None], depth_range)
+                out = finish(state, memory.entries if opts.mode == "estm" else [])
             if opts.mode == "estm":
                 out.memory.name = scan.frames[i].name
                 memory.add(out.memory)
-            yield self._result(scan, i, sources[i], out.depths[3], out.confidence, out_size)
+            yield self._result(scan, i, sources[i], out.depths[3], out.confidence, view)
 
-    def _run_joint(self, scan, store, sources, K, depth_range, out_size, opts, precision) -> Iterator[FrameDepth]:
+    def _run_joint(self, scan, store, sources, K, depth_range, view, opts, precision, prepare, finish
+                   ) -> Iterator[FrameDepth]:
         order = list(sources)
         for start in range(0, len(order), opts.joint_group):
             group = order[start:start + opts.joint_group]
@@ -251,23 +307,22 @@ class DepthEstimator:
                 for i in group:
                     image, feats = store.get(i)
                     src_feats = torch.stack([store.get(j)[1] for j in sources[i]], 1)
-                    states.append(self.model.prepare(image, feats, src_feats, K, self._pose(scan, [i]),
-                                                     self._pose(scan, sources[i])[None], depth_range))
+                    states.append(prepare(image, feats, src_feats, K, self._pose(scan, [i]),
+                                          self._pose(scan, sources[i])[None], depth_range))
             entries = [MemoryEntry(s.key, s.value, s.camera_to_world) for s in states]
             for k, (i, state) in enumerate(zip(group, states)):
                 with precision():
-                    out = self.model.finish(state, [e for j, e in enumerate(entries) if j != k])
+                    out = finish(state, [e for j, e in enumerate(entries) if j != k])
                 entries[k] = out.memory
-                yield self._result(scan, i, sources[i], out.depths[3], out.confidence, out_size)
+                yield self._result(scan, i, sources[i], out.depths[3], out.confidence, view)
 
     @staticmethod
-    def _result(scan, i, srcs, depth, confidence, out_size) -> FrameDepth:
-        depth = F.interpolate(depth.float(), out_size, mode="bilinear", align_corners=False)
-        conf = F.interpolate(confidence.float(), out_size, mode="bilinear", align_corners=False)
-        d = depth[0, 0].cpu().numpy()
+    def _result(scan, i, srcs, depth, confidence, view) -> FrameDepth:
+        d = to_scan_pixels(depth, *view)[0, 0].cpu().numpy()
+        conf = to_scan_pixels(confidence, *view)[0, 0].cpu().numpy()
         if not np.all(np.isfinite(d)):
             raise ReconError(f"frame {scan.frames[i].name}: the network produced non-finite depth")
-        return FrameDepth(i, scan.frames[i].name, d.astype(np.float32), conf[0, 0].cpu().numpy(), list(srcs))
+        return FrameDepth(i, scan.frames[i].name, d.astype(np.float32), conf.astype(np.float32), list(srcs))
 
 
 def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),
@@ -309,7 +364,9 @@ def _settings(scan: Scan, opts: DepthOptions, weights, config_name: str | None) 
             "memory_size": opts.memory_size, "num_sources": opts.num_sources,
             "source_baseline": opts.source_baseline, "min_baseline": opts.min_baseline,
             "source_window": opts.source_window,
-            "joint_group": opts.joint_group, "precision": opts.precision, "config": config_name, "weights": str(weights) if weights else None,
+            "joint_group": opts.joint_group, "precision": opts.precision,
+            "fit": opts.fit if opts.mode != "planesweep" else None, "config": config_name,
+            "weights": str(weights) if weights else None,
             "weights_digest": weights_digest(weights) if weights else None,
             "planesweep": asdict(opts.planesweep) if opts.mode == "planesweep" else None,
             "names": scan.names}

@@ -3,8 +3,8 @@
 Paper optimiser settings are the defaults (Adam, lr 4e-5, betas (0.9, 0.999), weight
 decay 1e-5, lr halved every 2 epochs). Checkpoints (`last.pt`) hold the model,
 optimiser, scheduler, step, epoch, config and a description of the data, so a run
-resumes exactly where it stopped. Mixed precision (bf16 autocast) and torch.compile
-are flags; under `torchrun` the model is wrapped in DistributedDataParallel and
+resumes exactly where it stopped. Mixed precision (`amp`: bf16 autocast, or fp16 autocast
+with a gradient scaler whose state the checkpoint keeps) and torch.compile are options; under `torchrun` the model is wrapped in DistributedDataParallel and
 map-style data is sharded with a DistributedSampler; only rank 0 writes files. Streamed
 data (`StreamingClips` over an endless generator) needs `steps_per_epoch` for the epoch-based
 lr schedule and `max_steps` to stop; on resume the stream starts again from its beginning
@@ -49,7 +49,7 @@ class TrainOptions:
     val_every: int = 1000  # steps; validation also runs at the end of every epoch
     checkpoint_every: int = 1000  # steps; a checkpoint is also written at the end of every epoch
     log_every: int = 50
-    amp: bool = False  # bf16 autocast (CUDA)
+    amp: str | None = None  # mixed precision: "bf16" autocast, or "fp16" autocast with a gradient scaler
     compile: bool = False  # torch.compile the model
     device: str = "auto"
     num_workers: int = 0
@@ -133,6 +133,11 @@ def train(train_data: Dataset | IterableDataset, out_dir: str | os.PathLike, opt
     optimizer = torch.optim.Adam(model.parameters(), lr=opts.lr, betas=tuple(opts.betas),
                                  weight_decay=opts.weight_decay)
     scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=max(opts.lr_halve_every, 1), gamma=0.5)
+    if opts.amp not in (None, "bf16", "fp16"):
+        raise ReconError(f"unknown mixed precision {opts.amp!r} (bf16 or fp16)")
+    amp_dtype = {"bf16": torch.bfloat16, "fp16": torch.float16}.get(opts.amp)
+    # fp16 has a narrow exponent: scale the loss so small gradients do not flush to zero.
+    scaler = torch.amp.GradScaler(device.type, enabled=opts.amp == "fp16")
     step, epoch = 0, 0
     if resume is not None:
         ckpt = load_checkpoint(resume, expected=cfg)
@@ -142,10 +147,9 @@ def train(train_data: Dataset | IterableDataset, out_dir: str | os.PathLike, opt
         optimizer.load_state_dict(ckpt.training["optimizer"])
         scheduler.load_state_dict(ckpt.training["scheduler"])
         step, epoch = int(ckpt.training["step"]), int(ckpt.training["epoch"])
+        if ckpt.training.get("grad_scaler"):
+            scaler.load_state_dict(ckpt.training["grad_scaler"])
         log.info("resumed from %s at step %d, epoch %d", resume, step, epoch)
-    use_amp = opts.amp and device.type == "cuda"
-    if opts.amp and not use_amp:
-        log.warning("--amp: mixed precision is used on CUDA only; training in float32")
     net: torch.nn.Module = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(
@@ -168,7 +172,7 @@ def train(train_data: Dataset | IterableDataset, out_dir: str | os.PathLike, opt
         meta = {"data": describe(), "steps": step, "epochs": epoch, "options": asdict(opts),
                 "validation": result.validation[-1:] or None, "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
         training = {"optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                    "step": step, "epoch": epoch}
+                    "step": step, "epoch": epoch, "grad_scaler": scaler.state_dict() if scaler.is_enabled() else None}
         result.checkpoint = save_checkpoint(out_dir / "last.pt", model, cfg, meta, training)
         if final:
             result.model_path = save_checkpoint(out_dir / "model.pt", model, cfg, meta, fp16=opts.fp16_export)
@@ -194,13 +198,14 @@ def train(train_data: Dataset | IterableDataset, out_dir: str | os.PathLike, opt
             train_data.epoch = epoch
         for batch in loader:
             batch = _to(batch, device)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=use_amp):
+            with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
                 loss, per_stage, _ = clip_loss(net, batch)
             if not math.isfinite(float(loss.detach())):
                 raise ReconError(f"training diverged at step {step} (loss {float(loss.detach())})")
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
+            scaler.scale(loss).backward()
+            scaler.step(optimizer)  # skips the step when fp16 gradients overflowed
+            scaler.update()
             step += 1
             result.losses.append(float(loss.detach()))
             if rank == 0:

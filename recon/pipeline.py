@@ -55,6 +55,7 @@ class RunConfig:
     window: str = "offline"
     memory_size: int | None = None
     depth_range: tuple[float, float] | None = None
+    fit: str = "stretch"  # frames to the network size: "stretch" or "crop" (aspect kept)
     device: str = "auto"
     voxel_size: float = 0.04
     fusion_depth_max: float = 4.0
@@ -68,7 +69,7 @@ class RunConfig:
         keys = {
             "scan": ("input", "format", "poses", "mapper", "start", "stride", "max_frames"),
             "evaluate": ("eval_max_depth", "gt_poses"),
-            "depth": ("keyframe_threshold", "mode", "weights", "window", "memory_size", "depth_range"),
+            "depth": ("keyframe_threshold", "mode", "weights", "window", "memory_size", "depth_range", "fit"),
             "fusion": ("voxel_size", "fusion_depth_max", "min_confidence"),
             "reference": ("gt_mesh", "voxel_size", "fusion_depth_max"),
             "report": ("report_frames",),
@@ -299,7 +300,7 @@ class Pipeline:
             depth_range = INDOOR_DEPTH_RANGE
             log.info("depth: no depth range given, sweeping %.2f-%.2f m", *depth_range)
         opts = DepthOptions(mode=cfg.mode, window=cfg.window, memory_size=cfg.memory_size,
-                            depth_range=depth_range, device=cfg.device)
+                            depth_range=depth_range, fit=cfg.fit, device=cfg.device)
         with self._bar("depth", len(scan)) as bar:
             summary = estimate_depth(scan, self.out / "depth", opts, weights=weights, resume=True, progress=bar)
         return {"mode": cfg.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],

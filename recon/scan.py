@@ -151,6 +151,7 @@ class Scan:
     root: Path | None = None
     distortion: np.ndarray | None = None  # OpenCV (k1, k2, p1, p2[, k3...]) of the stored images
     output_size: tuple[int, int] | None = None  # (width, height) handed out; None = stored size
+    crop: tuple[int, int, int, int] | None = None  # (left, top, width, height) of the output-size image handed out
     # Camera of the stored depth maps when it is not the colour camera (Kinect-style sensors): same optical
     # centre and orientation, other focal length / principal point / size. Depth is resampled onto the colour camera.
     depth_intrinsics: Intrinsics | None = None
@@ -161,9 +162,8 @@ class Scan:
 
     @property
     def intrinsics(self) -> Intrinsics:
-        if self.output_size is None:
-            return self.source_intrinsics
-        return self.source_intrinsics.resized(*self.output_size)
+        intr = self.source_intrinsics if self.output_size is None else self.source_intrinsics.resized(*self.output_size)
+        return intr if self.crop is None else intr.cropped(*self.crop)
 
     @property
     def names(self) -> list[str]:
@@ -203,7 +203,14 @@ class Scan:
         """The same scan handing out images of width x height (intrinsics follow)."""
         if width <= 0 or height <= 0:
             raise ReconError(f"invalid image size {width}x{height}")
+        if self.crop is not None:
+            raise ReconError("a cropped scan cannot be resized again: resize first, then crop")
         return dataclasses.replace(self, output_size=(int(width), int(height)))
+
+    def cropped(self, left: int, top: int, width: int, height: int) -> "Scan":
+        """The same scan handing out the window [left, left+width) x [top, top+height) of its images."""
+        self.intrinsics.cropped(left, top, width, height)  # validates the window
+        return dataclasses.replace(self, crop=(int(left), int(top), int(width), int(height)))
 
     # -- pixels ------------------------------------------------------------------------------
     def image(self, i: int) -> np.ndarray:
@@ -251,11 +258,14 @@ class Scan:
         return cv2.remap(img, map1, map2, interp)
 
     def _resize(self, img: np.ndarray, interp: int) -> np.ndarray:
-        if self.output_size is None or self.output_size == (img.shape[1], img.shape[0]):
-            return img
-        if interp == cv2.INTER_AREA and (self.output_size[0] > img.shape[1]):
-            interp = cv2.INTER_LINEAR
-        return cv2.resize(img, self.output_size, interpolation=interp)
+        if self.output_size is not None and self.output_size != (img.shape[1], img.shape[0]):
+            if interp == cv2.INTER_AREA and (self.output_size[0] > img.shape[1]):
+                interp = cv2.INTER_LINEAR
+            img = cv2.resize(img, self.output_size, interpolation=interp)
+        if self.crop is not None:
+            left, top, w, h = self.crop
+            img = np.ascontiguousarray(img[top:top + h, left:left + w])
+        return img
 
     def validate(self) -> "Scan":
         """Check poses (shape, finite, rigid) and names; returns self."""

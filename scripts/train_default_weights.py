@@ -121,12 +121,14 @@ def main(argv=None) -> int:
     model = ESTNet(cfg).train()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999), weight_decay=args.weight_decay)
     step, trained_s, clips_seen = 0, 0.0, 0
+    earlier_seeds: list[int] = []
     if args.resume:
         ck = load_checkpoint(args.resume, expected=cfg)
         model.load_state_dict(ck.state_dict)
         opt.load_state_dict(ck.training["optimizer"])
         step, trained_s = int(ck.training["step"]), float(ck.training.get("trained_s", 0.0))
         clips_seen = int(ck.training.get("clips_seen", step))
+        earlier_seeds = list(ck.metadata.get("data", {}).get("train_seeds", []))
         log.info("resumed from %s at step %d", args.resume, step)
     t_start = time.time()
     prior_s = trained_s
@@ -142,7 +144,8 @@ def main(argv=None) -> int:
              cfg.name, sum(p.numel() for p in model.parameters()), len(val_data), DEPTH_RANGE, deadline)
 
     gen = torch.Generator().manual_seed(args.seed + step)
-    stream = training_stream(args.seed + 1 + step // 1000, cfg.image_width, cfg.image_height)
+    stream_seed = args.seed + 1 + step // 1000
+    stream = training_stream(stream_seed, cfg.image_width, cfg.image_height)
     size_switched = False
     jsonl = open(out / "log.jsonl", "a")
 
@@ -152,7 +155,8 @@ def main(argv=None) -> int:
 
     meta_base = {"data": {"train": "recon.synthetic.iter_training_scans, clean + SensorEffects.realistic() "
                                    "alternating, 5-keyframe clips (keyframe distance 0.2)",
-                          "train_seeds": [args.seed + 1, args.seed + 51], "val_seeds": [VAL_SEED, VAL_SEED + 1],
+                          "train_seeds": sorted(set(earlier_seeds) | {stream_seed, stream_seed + 50}),
+                          "val_seeds": [VAL_SEED, VAL_SEED + 1],
                           "depth_range": list(DEPTH_RANGE)},
                  "hardware": f"CPU, {args.threads} thread(s), shared 2-core machine", "options": vars(args)}
 

@@ -7,7 +7,8 @@ import torch
 
 from depth.checkpoint import save_checkpoint
 from depth.config import TINY
-from depth.inference import DepthEstimator, DepthOptions, TemporalMemory, estimate_depth
+from depth.inference import (DepthEstimator, DepthOptions, TemporalMemory, estimate_depth, network_view,
+                             to_scan_pixels)
 from depth.model import ESTNet
 from depth.selection import pose_distance, select_keyframes, select_sources
 from depth.synthetic_planes import lateral_path, plane_scan
@@ -173,3 +174,48 @@ def test_bf16_precision_stays_close_to_fp32(estimator, scan):
     assert any(np.abs(a.depth - b.depth).max() > 0 for a, b in zip(fp32, bf16))  # it did run in bf16
     with pytest.raises(ReconError, match="precision"):
         _run(estimator, scan, precision="fp8")
+
+
+def test_crop_fit_keeps_square_pixels_and_maps_back_to_the_window():
+    wide = plane_scan(3, 192, 96)  # 2:1 frames into a 5:4 network input
+    stretched = network_view(wide, 80, 64, "stretch").intrinsics
+    cropped = network_view(wide, 80, 64, "crop").intrinsics
+    assert abs(stretched.fx / stretched.fy - 1) > 0.3  # stretching makes pixels non-square ...
+    assert cropped.size == (80, 64) and cropped.fx == pytest.approx(cropped.fy)  # ... cropping does not
+    assert cropped.cx == pytest.approx((80 - 1) / 2) and cropped.cy == pytest.approx((64 - 1) / 2)
+    # A map equal to each network pixel's scan x coordinate comes back as the scan's x inside the
+    # window, and 0 in the cropped-off borders.
+    view = network_view(wide, 80, 64, "crop")
+    cover_w = view.output_size[0]
+    left = view.crop[0]
+    net_x = (torch.arange(80, dtype=torch.float32) + left + 0.5) * (192 / cover_w) - 0.5
+    back = to_scan_pixels(net_x.expand(1, 1, 64, 80).clone(), view, (192, 96))[0, 0]
+    assert torch.allclose(back[:, 40:152], torch.arange(40, 152, dtype=torch.float32).expand(96, -1), atol=1e-3)
+    kept = int(round(80 * 192 / cover_w))
+    assert (back[:, :(192 - kept) // 2 - 1] == 0).all() and (back[:, -((192 - kept) // 2 - 1):] == 0).all()
+    # "stretch" is plain bilinear resampling of the whole frame.
+    x = torch.rand(1, 2, 64, 80)
+    ref = torch.nn.functional.interpolate(x, (96, 192), mode="bilinear", align_corners=False)
+    assert torch.allclose(to_scan_pixels(x, network_view(wide, 80, 64, "stretch"), (192, 96)), ref, atol=1e-5)
+
+
+def test_crop_fit_gives_no_depth_outside_the_window(estimator):
+    wide = plane_scan(4, 200, 80, step=0.08)
+    full = _run(estimator, wide, mode="estm")
+    crop = _run(estimator, wide, mode="estm", fit="crop")
+    for f, c in zip(full, crop):
+        assert c.depth.shape == f.depth.shape == (80, 200)
+        assert (f.depth > 0).all()
+        assert (c.depth[:, :5] == 0).all() and (c.confidence[:, :5] == 0).all()
+        assert (c.depth[:, 60:140] > 0).all()
+    with pytest.raises(ReconError, match="unknown fit"):
+        _run(estimator, wide, fit="pad")
+
+
+@pytest.mark.slow
+def test_compiled_network_gives_the_same_depth(estimator, scan):
+    eager = _run(estimator, scan, mode="estm")
+    compiled = _run(estimator, scan, mode="estm", compile=True)
+    assert estimator.network_calls(True) is estimator.network_calls(True)  # compiled once, then reused
+    for a, b in zip(eager, compiled):
+        assert np.allclose(a.depth, b.depth, rtol=1e-4, atol=1e-4)

@@ -76,6 +76,22 @@ def test_resume_continues_exactly(tmp_path):
         train(data, tmp_path / "c", _quiet(max_steps=1), model_config=TINY, resume=straight.model_path)
 
 
+def test_mixed_precision_learns_and_fp16_scaler_state_resumes(tmp_path):
+    data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
+    torch.manual_seed(0)
+    bf16 = train(data, tmp_path / "bf16", _quiet(max_steps=30, lr=2e-3, batch_size=2, amp="bf16"), model_config=TINY)
+    assert _drop(bf16.losses) > 2.0
+    torch.manual_seed(0)
+    fp16 = train(data, tmp_path / "fp16", _quiet(max_steps=3, lr=1e-3, amp="fp16"), model_config=TINY)
+    scaler = load_checkpoint(fp16.checkpoint).training["grad_scaler"]
+    assert scaler is not None and scaler["scale"] > 0  # the loss scale travels with the checkpoint
+    resumed = train(data, tmp_path / "fp16", _quiet(max_steps=5, lr=1e-3, amp="fp16"), model_config=TINY,
+                    resume=fp16.checkpoint)
+    assert resumed.steps == 5 and all(torch.isfinite(torch.tensor(resumed.losses)))
+    with pytest.raises(ReconError, match="mixed precision"):
+        train(data, tmp_path / "x", _quiet(max_steps=1, amp="fp8"), model_config=TINY)
+
+
 DDP_SCRIPT = """
 import os, sys, torch
 torch.set_num_threads(1)

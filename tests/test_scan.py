@@ -27,6 +27,21 @@ def test_intrinsics_resize_keeps_projection_consistent():
         Intrinsics(0, 1, 1, 1, 10, 10)
 
 
+def test_cropped_scan_hands_out_the_window_with_matching_intrinsics():
+    scan = box_room_scan(3)
+    W, H = scan.intrinsics.size
+    view = scan.resized(W // 2, H // 2).cropped(5, 3, W // 2 - 10, H // 2 - 6)
+    half = scan.resized(W // 2, H // 2)
+    assert np.array_equal(view.image(1), half.image(1)[3:3 + H // 2 - 6, 5:5 + W // 2 - 10])
+    assert np.array_equal(view.depth(1), half.depth(1)[3:3 + H // 2 - 6, 5:5 + W // 2 - 10])
+    assert view.intrinsics == half.intrinsics.cropped(5, 3, W // 2 - 10, H // 2 - 6)
+    assert view.image(0).shape[:2] == (view.intrinsics.height, view.intrinsics.width)
+    with pytest.raises(ReconError, match="resize first"):
+        view.resized(10, 10)
+    with pytest.raises(ReconError, match="outside image"):
+        half.cropped(0, 0, W, H)
+
+
 def test_select_keeps_names_and_rejects_empty():
     scan = box_room_scan(10)
     sub = scan.select(start=1, stride=3, max_frames=2)

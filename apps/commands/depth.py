@@ -27,6 +27,9 @@ def register(subparsers):
     p.add_argument("--memory", type=int, default=None, metavar="N", help="ESTM memory length (default: config, 2)")
     p.add_argument("--depth-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                    help="depth range to sweep (default: the scan's metadata)")
+    p.add_argument("--fit", choices=("stretch", "crop"), default="stretch",
+                   help="fit frames to the network size: stretch the whole frame (default) or crop (scale to cover, keep the "
+                        "aspect ratio; the cropped-off borders get no depth)")
     p.add_argument("--baseline", type=float, default=0.15,
                    help="translation a frame's sources should ideally have, in scan units (default 0.15)")
     p.add_argument("--keyframe-distance", type=float, default=0.0, metavar="D",
@@ -35,6 +38,8 @@ def register(subparsers):
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
                    help="network arithmetic: bf16 autocast is faster on GPUs and bf16-capable CPUs (default fp32)")
+    p.add_argument("--compile", action="store_true",
+                   help="torch.compile the network: about a minute of compiling, then faster frames (GPU above all)")
     p.set_defaults(func=run)
 
 
@@ -52,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     opts = DepthOptions(mode=args.mode, window=args.window, memory_size=args.memory,
                         depth_range=tuple(args.depth_range) if args.depth_range else None,
                         source_baseline=args.baseline, device=args.device, config=args.config,
-                        precision=args.precision)
+                        precision=args.precision, fit=args.fit, compile=args.compile)
     weights = None if args.mode == "planesweep" else args.weights
     with Progress(TextColumn("depth ({task.fields[mode]})"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeRemainingColumn(), disable=getattr(args, "quiet", False)) as bar:

@@ -27,6 +27,9 @@ def add_pipeline_args(p, with_input: bool = True) -> None:
     g.add_argument("--memory", type=int, default=None, help="ESTM memory length (default: the network's, 2)")
     g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
                    help="depth planes' range (default: from the scan's metadata)")
+    g.add_argument("--fit", choices=["stretch", "crop"], default="stretch",
+                   help="fit frames to the network size: stretch the whole frame (default) or crop (scale to cover, keep the "
+                        "aspect ratio; the cropped-off borders get no depth)")
     g.add_argument("--keyframe-threshold", type=float, default=0.1,
                    help="camera motion between keyframes (translation + rotation measure); 0 = every frame")
     g.add_argument("--device", default="auto", help="auto, cpu or cuda (network and fusion)")
@@ -73,7 +76,7 @@ def config_from_args(args, input_path: str, out: str):
         keyframe_threshold=args.keyframe_threshold, mode=pick_mode(args.mode, args.weights), weights=args.weights,
         window=args.window,
         memory_size=args.memory, depth_range=tuple(args.depth_range) if args.depth_range else None,
-        device=args.device, voxel_size=args.voxel_size, fusion_depth_max=args.depth_max,
+        fit=args.fit, device=args.device, voxel_size=args.voxel_size, fusion_depth_max=args.depth_max,
         min_confidence=args.min_confidence, gt_mesh=args.gt_mesh, gt_poses=args.gt_poses)
 
 

@@ -35,7 +35,9 @@ def register(subparsers):
     p.add_argument("--no-augment", action="store_true", help="disable photometric augmentation")
     p.add_argument("--val-every", type=int, default=1000, metavar="STEPS")
     p.add_argument("--checkpoint-every", type=int, default=1000, metavar="STEPS")
-    p.add_argument("--amp", action="store_true", help="bf16 mixed precision (CUDA)")
+    p.add_argument("--amp", nargs="?", const="bf16", choices=("bf16", "fp16"), default=None,
+                   help="mixed precision: bf16 (default when given), or fp16 with a gradient scaler (GPUs "
+                        "without bf16)")
     p.add_argument("--compile", action="store_true", help="torch.compile the model")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--workers", type=int, default=0, help="data loader worker processes")
