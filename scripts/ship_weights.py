@@ -1,10 +1,12 @@
-"""Write a shipped weights file (default depth/weights/compact-cpu-preview.pt) from a selected training checkpoint.
+"""Write a shipped weights file (depth/weights/compact.pt or compact-cpu-preview.pt) from a selected checkpoint.
 
     python scripts/ship_weights.py runs/compact_cpu/step_001200.pt --run runs/compact_cpu \
         --selection runs/select/summary.json
 
 Refuses unless the checkpoint's ESTM beats the plane sweep on the held-out synthetic scans of
-the selection summary (mean Abs Rel and mean delta<1.25). Stores float16 weights (no optimiser
+the selection summary (mean Abs Rel and mean delta<1.25). The file is the default `compact`
+(what `recon run` uses) only when ESTM's meshes also beat the plane sweep's there (mean mesh
+F-score against the GT-depth fusion); otherwise it is `compact-cpu-preview`, used on request. Stores float16 weights (no optimiser
 state) with metadata: data, steps, hardware, wall time, clip validation, held-out figures.
 """
 from __future__ import annotations
@@ -24,7 +26,7 @@ def main(argv=None) -> int:
     p.add_argument("checkpoint")
     p.add_argument("--run", required=True, help="training run folder (log.jsonl)")
     p.add_argument("--selection", required=True, help="summary.json of scripts/select_checkpoint.py")
-    p.add_argument("--out", default=str(ROOT / "depth" / "weights" / "compact-cpu-preview.pt"))
+    p.add_argument("--out", default=None, help="output file (default: by the rules above)")
     args = p.parse_args(argv)
 
     from depth.checkpoint import build_model, load_checkpoint, save_checkpoint
@@ -47,6 +49,12 @@ def main(argv=None) -> int:
     if not (est["abs_rel"] < ps["abs_rel"] and est["a1"] > ps["a1"]):
         print("not shipped: ESTM does not beat the plane sweep on the held-out synthetic scans")
         return 1
+    est_mesh, ps_mesh = mean(key, "mesh_fscore"), mean("planesweep", "mesh_fscore")
+    as_default = est_mesh > ps_mesh
+    print(f"held-out synthetic meshes: ESTM F {est_mesh:.3f}, plane sweep F {ps_mesh:.3f} -> "
+          + ("the default `compact`" if as_default else "a preview (`compact-cpu-preview`), not the default"))
+    out_path = Path(args.out) if args.out else ROOT / "depth" / "weights" / (
+        "compact.pt" if as_default else "compact-cpu-preview.pt")
     recs = [json.loads(x) for x in (Path(args.run) / "log.jsonl").read_text().splitlines() if x.strip()]
     train = [r for r in recs if r["kind"] == "train"]
     val = [r for r in recs if r["kind"] == "val"]
@@ -61,7 +69,7 @@ def main(argv=None) -> int:
         "clips_per_s_cpu": {"median": statistics.median(r["clips_per_s"] for r in train)} if train else None,
         "source_checkpoint": str(args.checkpoint),
     })
-    out = save_checkpoint(args.out, build_model(ck), COMPACT, meta, fp16=True)
+    out = save_checkpoint(out_path, build_model(ck), COMPACT, meta, fp16=True)
     print(f"shipped {out} ({out.stat().st_size / 1e6:.2f} MB, float16)")
     return 0
 
