@@ -83,11 +83,11 @@ def main(argv=None) -> int:
     print(table)
     if "mesh" in results:
         print()
-        print(mesh_markdown(results["mesh"]))
+        print(mesh_markdown(results["mesh"], results.get("mesh_baselines")))
     if args.json:
         write_results(results, args.json)
     if args.markdown:
-        text = table + ("\n\n" + mesh_markdown(results["mesh"]) if "mesh" in results else "") + "\n"
+        text = table + ("\n\n" + mesh_markdown(results["mesh"], results.get("mesh_baselines")) if "mesh" in results else "") + "\n"
         Path(args.markdown).write_text(text)
     return 0
 

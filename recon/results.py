@@ -14,10 +14,11 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
+from recon.errors import ReconError
 from recon.scan import Scan
 
 # ESTDepth (Long et al., CVPR 2021), Table 2: 7-Scenes, zero-shot after ScanNet training.
@@ -45,6 +46,7 @@ class TableOptions:
     device: str = "cpu"
     mesh: bool = True
     mesh_row: str = "estm_m2"
+    mesh_baselines: tuple[str, ...] = ("planesweep",)  # rows also fused and scored, for comparison
     voxel_size: float = 0.04
     mesh_depth_max: float = 4.0
     resume: bool = True
@@ -98,6 +100,8 @@ def depth_table(scan: Scan, out_dir: str | Path, opts: TableOptions = TableOptio
             f"flicker {metrics['flicker']:.4f}  {metrics['seconds_per_frame']:.2f} s/frame  ({time.time() - t0:.0f} s)")
     if opts.mesh and opts.mesh_row in results["rows"]:
         results["mesh"] = mesh_scores(scan, out_dir, opts, log)
+        results["mesh_baselines"] = {row: mesh_scores(scan, out_dir, replace(opts, mesh_row=row), log)
+                                     for row in opts.mesh_baselines if row in results["rows"]}
     return results
 
 
@@ -129,10 +133,15 @@ def mesh_scores(scan: Scan, out_dir: Path, opts: TableOptions, log: Callable[[st
 
     cfg = TSDFConfig(voxel_size=opts.voxel_size, depth_max=opts.mesh_depth_max, device="cpu")
     t0 = time.time()
-    pred = fuse_scan(scan, out_dir / opts.mesh_row, cfg)
     gt = fuse_scan(scan, "gt", TSDFConfig(voxel_size=opts.voxel_size, depth_max=opts.mesh_depth_max, device="cpu"))
-    pred.export(out_dir / f"mesh_{opts.mesh_row}.ply")
     gt.export(out_dir / "mesh_gt_fusion.ply")
+    try:
+        pred = fuse_scan(scan, out_dir / opts.mesh_row, cfg)
+    except ReconError as exc:  # no depth survived (a sparse method on few frames): nothing reconstructed
+        log(f"mesh ({label(opts.mesh_row)}): {exc}")
+        return {"acc": math.nan, "comp": math.nan, "chamfer": math.nan, "prec": 0.0, "recall": 0.0, "fscore": 0.0,
+                "row": opts.mesh_row, "empty": True}
+    pred.export(out_dir / f"mesh_{opts.mesh_row}.ply")
     m = mesh_metrics(pred, gt, scan=scan)
     m.update({"row": opts.mesh_row, "voxel_size": opts.voxel_size, "depth_max": opts.mesh_depth_max})
     log(f"mesh ({label(opts.mesh_row)} vs GT-depth fusion): acc {m['acc']:.4f} m  comp {m['comp']:.4f} m  "
@@ -156,11 +165,14 @@ def markdown_table(results: dict, paper: bool = True) -> str:
     return "\n".join(lines)
 
 
-def mesh_markdown(mesh: dict) -> str:
-    return ("| mesh | accuracy (m) | completeness (m) | chamfer (m) | precision @5 cm | recall @5 cm | F-score @5 cm |\n"
-            "|---|---|---|---|---|---|---|\n"
-            f"| {label(mesh['row'])} fusion vs GT-depth fusion | {mesh['acc']:.4f} | {mesh['comp']:.4f} | "
-            f"{mesh['chamfer']:.4f} | {mesh['prec']:.3f} | {mesh['recall']:.3f} | {mesh['fscore']:.3f} |")
+def mesh_markdown(mesh: dict, baselines: dict | None = None) -> str:
+    """The mesh scores as Markdown: the main row, then any baseline rows."""
+    lines = ["| mesh | accuracy (m) | completeness (m) | chamfer (m) | precision @5 cm | recall @5 cm | F-score @5 cm |",
+             "|---|---|---|---|---|---|---|"]
+    for m in [mesh, *(baselines or {}).values()]:
+        lines.append(f"| {label(m['row'])} fusion vs GT-depth fusion | {m['acc']:.4f} | {m['comp']:.4f} | "
+                     f"{m['chamfer']:.4f} | {m['prec']:.3f} | {m['recall']:.3f} | {m['fscore']:.3f} |")
+    return "\n".join(lines)
 
 
 def write_results(results: dict, path: str | Path) -> None:

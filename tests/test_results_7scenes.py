@@ -43,8 +43,10 @@ def test_evaluation_script_on_five_frames(sevenscenes, random_weights, tmp_path)
     assert res["rows"]["planesweep"]["coverage"] < 0.9  # the plane sweep refuses blank areas
     mesh = res["mesh"]
     assert 0 <= mesh["fscore"] <= 1 and mesh["acc"] > 0 and mesh["gt_points"] > 1000
+    assert 0 <= res["mesh_baselines"]["planesweep"]["fscore"] <= 1  # the classical mesh, for comparison
     md = out_md.read_text()
     assert "| planesweep |" in md and "0.1465" in md and "80.36%" in md and "F-score" in md
+    assert "| planesweep fusion vs GT-depth fusion |" in md
     assert (tmp_path / "run" / "mesh_gt_fusion.ply").is_file()
 
 
