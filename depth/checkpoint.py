@@ -98,9 +98,8 @@ def build_model(checkpoint: Checkpoint) -> torch.nn.Module:
     return model.eval()
 
 
-# Shipped under a name of its own, not as the default `compact`: 41 CPU minutes of training give better
-# depth than the plane sweep but worse meshes (docs/model_card.md), so the plane sweep stays the default.
-PREVIEW_WEIGHTS = "compact-cpu-preview"
+# The shipped default (depth/weights/compact.pt, docs/model_card.md): what learned modes load unless told otherwise.
+DEFAULT_WEIGHTS = "compact"
 INDOOR_DEPTH_RANGE = (0.25, 6.0)  # metres: planes for a metric indoor scan that states no range of its own
 
 

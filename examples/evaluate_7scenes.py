@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from depth.checkpoint import PREVIEW_WEIGHTS, trained_depth_range  # noqa: E402  (after the path set-up)
+from depth.checkpoint import DEFAULT_WEIGHTS, trained_depth_range  # noqa: E402  (after the path set-up)
 from recon.results import DEFAULT_ROWS  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
@@ -32,7 +32,7 @@ DEFAULT_DATA = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description="7-Scenes zero-shot depth table + mesh scores")
     p.add_argument("--data", default=str(DEFAULT_DATA), help="7-Scenes folder (default ../shared/data/7scenes-redkitchen)")
-    p.add_argument("--weights", default=PREVIEW_WEIGHTS, help=f"checkpoint name or path (default: {PREVIEW_WEIGHTS})")
+    p.add_argument("--weights", default=DEFAULT_WEIGHTS, help=f"checkpoint name or path (default: {DEFAULT_WEIGHTS})")
     p.add_argument("--concat-weights", default=None, help="a concat-fusion checkpoint, for its extra row")
     p.add_argument("--stride", type=int, default=10)
     p.add_argument("--start", type=int, default=0)

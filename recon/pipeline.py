@@ -76,9 +76,9 @@ class RunConfig:
         }[stage]
         options = {k: getattr(self, k) for k in keys}
         if stage == "depth" and self.mode != "planesweep":
-            from depth.checkpoint import weights_digest
+            from depth.checkpoint import DEFAULT_WEIGHTS, weights_digest
 
-            options["weights_digest"] = weights_digest(self.weights or "compact")
+            options["weights_digest"] = weights_digest(self.weights or DEFAULT_WEIGHTS)
         return options
 
 
@@ -285,11 +285,11 @@ class Pipeline:
     def stage_depth(self) -> dict:
         from depth.inference import DepthOptions, estimate_depth
 
-        from depth.checkpoint import INDOOR_DEPTH_RANGE, trained_depth_range
+        from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, trained_depth_range
 
         cfg = self.config
         scan = self.keyframe_scan()
-        weights = cfg.weights or (None if cfg.mode == "planesweep" else "compact")  # the shipped default
+        weights = cfg.weights or (None if cfg.mode == "planesweep" else DEFAULT_WEIGHTS)
         depth_range = cfg.depth_range
         learned_range = trained_depth_range(weights) if cfg.mode != "planesweep" else None
         if depth_range is None and learned_range is None and scan.metadata.depth_range is None:

@@ -37,7 +37,7 @@ DEFAULT_ROWS = ("planesweep", "independent", "joint", "estm_m1", "estm_m2", "est
 class TableOptions:
     """What to run. `depth_range` is the sweep range (metres); `eval_range` the scoring range."""
 
-    weights: str = "compact-cpu-preview"
+    weights: str = "compact"
     concat_weights: str | None = None  # a checkpoint trained with fusion="concat": adds an `estm concat` row
     rows: tuple[str, ...] = DEFAULT_ROWS
     depth_range: tuple[float, float] = (0.25, 6.0)

@@ -52,18 +52,20 @@ def register(subparsers):
 
 
 def pick_mode(requested: str | None, weights: str | None) -> str:
-    """ESTM when weights are available; otherwise the classical plane sweep, said out loud."""
+    """ESTM with the given or shipped weights; the classical plane sweep, said out loud, when none ship."""
     if requested:
         return requested
-    from depth.checkpoint import resolve_weights
+    if weights is not None:
+        return "estm"  # the depth stage names a missing or unreadable file
+    from depth.checkpoint import DEFAULT_WEIGHTS, resolve_weights
     from recon.errors import ReconError
 
     try:
-        resolve_weights(weights or "compact")
+        resolve_weights(DEFAULT_WEIGHTS)
         return "estm"
     except ReconError:
-        print("note: no trained depth weights ship yet, so depth comes from the classical plane sweep "
-              "(pass --weights PATH to use a checkpoint from `recon train`)")
+        print(f"note: the shipped depth weights ({DEFAULT_WEIGHTS}) are missing, so depth comes from the classical "
+              "plane sweep (pass --weights PATH to use a checkpoint from `recon train`)")
         return "planesweep"
 
 
