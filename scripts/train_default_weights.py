@@ -95,7 +95,9 @@ def main(argv=None) -> int:
     p.add_argument("--val-every", type=int, default=100)
     p.add_argument("--log-every", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--resume", default=None)
+    p.add_argument("--resume", default=None, help="a last.pt with optimiser state: continue exactly")
+    p.add_argument("--init", default=None, metavar="WEIGHTS",
+                   help="start from these weights (e.g. compact, the shipped file) with a fresh optimiser")
     p.add_argument("--max-steps", type=int, default=None)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--low-res", default="160x128", help="clip size for the first part of training (the network "
@@ -116,12 +118,20 @@ def main(argv=None) -> int:
         deadline += dt.timedelta(days=1)
     t_end = time.time() + (deadline - now).total_seconds()
 
+    if args.init and args.resume:
+        p.error("--init and --resume exclude each other")
     cfg = get_config(args.config)
     torch.manual_seed(args.seed)
     model = ESTNet(cfg).train()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999), weight_decay=args.weight_decay)
     step, trained_s, clips_seen = 0, 0.0, 0
     earlier_seeds: list[int] = []
+    if args.init:
+        ck = load_checkpoint(args.init, expected=cfg)
+        model.load_state_dict({k: v.float() for k, v in ck.state_dict.items()})
+        step, clips_seen = int(ck.metadata.get("steps", 0)), int(ck.metadata.get("clips_seen", 0))
+        earlier_seeds = list(ck.metadata.get("data", {}).get("train_seeds", []))
+        log.info("initialised from %s (trained %d steps), fresh optimiser", args.init, step)
     if args.resume:
         ck = load_checkpoint(args.resume, expected=cfg)
         model.load_state_dict(ck.state_dict)
@@ -130,6 +140,7 @@ def main(argv=None) -> int:
         clips_seen = int(ck.training.get("clips_seen", step))
         earlier_seeds = list(ck.metadata.get("data", {}).get("train_seeds", []))
         log.info("resumed from %s at step %d", args.resume, step)
+    warm_from = step if args.init else 0  # a fresh optimiser warms up again
     t_start = time.time()
     prior_s = trained_s
     total = prior_s + (t_end - t_start)  # the lr schedule runs on wall time up to the deadline
@@ -192,7 +203,7 @@ def main(argv=None) -> int:
         batch = {k: v.unsqueeze(0) for k, v in batch.items()}
         t1 = time.time()
         data_s += t1 - t0
-        lr = lr_at(prior_s + time.time() - t_start, total, step, args)
+        lr = lr_at(prior_s + time.time() - t_start, total, step - warm_from, args)
         for g in opt.param_groups:
             g["lr"] = lr
         loss, per_stage, _ = clip_loss(model, batch)
