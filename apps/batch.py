@@ -22,7 +22,7 @@ from typing import Callable, Iterable
 
 from recon.errors import ReconError
 from recon.io import write_bytes_atomic, write_json_atomic
-from recon.pipeline import VIDEO_SUFFIXES, Pipeline, RunConfig
+from apps.pipeline import VIDEO_SUFFIXES, Pipeline, RunConfig
 
 log = logging.getLogger("recon")
 
@@ -32,7 +32,7 @@ SUMMARY_KEYS = (("depth", "abs_rel"), ("depth", "a1"), ("temporal", "flicker"), 
 
 def discover_inputs(dataset: str | Path) -> list[Path]:
     """Scans under a folder (each sub-folder a reader recognises, or a video file), or the paths in a list file."""
-    from poses.readers import detect_format
+    from recon.readers import detect_format
 
     dataset = Path(dataset)
     if dataset.is_file():
@@ -87,7 +87,8 @@ def _configs(inputs: Iterable[Path], out: Path, template: RunConfig) -> list[Run
         while name in names:
             name += "_"
         names.add(name)
-        configs.append(dataclasses.replace(template, input=str(path), out=str(out / name)))
+        configs.append(dataclasses.replace(template, input=dataclasses.replace(template.input, path=str(path)),
+                                           out=str(out / name)))
     return configs
 
 

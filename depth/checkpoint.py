@@ -32,6 +32,7 @@ class Checkpoint:
     state_dict: dict[str, torch.Tensor]
     metadata: dict[str, Any] = field(default_factory=dict)
     training: dict[str, Any] = field(default_factory=dict)
+    source: str = "checkpoint"  # the file it came from, for messages
 
 
 def resolve_weights(name_or_path: str | os.PathLike) -> Path:
@@ -52,16 +53,27 @@ def resolve_weights(name_or_path: str | os.PathLike) -> Path:
 def save_checkpoint(path: str | os.PathLike, model: torch.nn.Module, config: ESTConfig,
                     metadata: dict[str, Any] | None = None, training: dict[str, Any] | None = None,
                     fp16: bool = False) -> Path:
-    """Write a checkpoint atomically. `fp16` stores floating-point tensors as float16."""
+    """Write a checkpoint atomically. `fp16` stores floating-point tensors as float16. A pretrained
+    encoder's frozen tensors are left out (they load from their package) and the package is recorded."""
+    stored = model.stored_state_dict() if hasattr(model, "stored_state_dict") else model.state_dict()
     state = {k: (v.detach().to("cpu", torch.float16) if fp16 and v.is_floating_point() else v.detach().cpu())
-             for k, v in model.state_dict().items()}
+             for k, v in stored.items()}
     doc = {"format": FORMAT, "version": VERSION, "config": config.to_dict(), "state_dict": state,
            "storage": "float16" if fp16 else "float32", "metadata": dict(metadata or {}),
-           "training": dict(training or {})}
+           "training": dict(training or {}), "pretrained": pretrained_record(config)}
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(doc, tmp)
     return path
+
+
+def pretrained_record(config: ESTConfig) -> dict | None:
+    """Which package and file a config's frozen encoder loads from (None for the resnet configs)."""
+    if config.encoder == "resnet":
+        return None
+    from .model.efficientnet import LITE0_WEIGHTS
+
+    return {"encoder": config.encoder, "package": LITE0_WEIGHTS.package, "sha256": LITE0_WEIGHTS.sha256}
 
 
 def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None = None) -> Checkpoint:
@@ -82,20 +94,30 @@ def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None 
         raise ReconError(f"{path}: checkpoint is for depth config {config.name!r}, expected {expected.name!r} "
                          f"(differs in {', '.join(diff)})")
     state = {k: v.float() if v.is_floating_point() else v for k, v in doc["state_dict"].items()}
-    return Checkpoint(config, state, doc.get("metadata", {}), doc.get("training", {}))
+    return Checkpoint(config, state, doc.get("metadata", {}), doc.get("training", {}), str(path))
 
 
 def build_model(checkpoint: Checkpoint) -> torch.nn.Module:
     """An ESTNet of the checkpoint's config with its weights (eval mode, CPU)."""
     from .model import ESTNet
 
-    model = ESTNet(checkpoint.config)
-    try:
-        model.load_state_dict(checkpoint.state_dict)
-    except RuntimeError as exc:
-        first = str(exc).splitlines()[0]
-        raise ReconError(f"checkpoint weights do not fit the {checkpoint.config.name!r} network: {first}") from None
+    model = ESTNet(checkpoint.config)  # loads a pretrained encoder from its package
+    load_weights(model, checkpoint.state_dict, checkpoint.source)
     return model.eval()
+
+
+def load_weights(model: torch.nn.Module, state: dict[str, torch.Tensor], source: str = "checkpoint") -> None:
+    """Load a checkpoint's tensors: every one must fit, and only package-loaded tensors may be absent."""
+    own = model.state_dict()
+    wrong = [f"{k} {tuple(v.shape)} vs {tuple(own[k].shape)}" for k, v in state.items()
+             if k in own and own[k].shape != v.shape]
+    unknown = sorted(set(state) - set(own))
+    absent = sorted(set(own) - set(state) - model.pretrained_keys())
+    if wrong or unknown or absent:
+        what = (f"shape mismatch {wrong[0]}" if wrong else f"unknown tensor {unknown[0]}" if unknown
+                else f"missing tensor {absent[0]}")
+        raise ReconError(f"{source}: weights do not fit the {model.cfg.name!r} network ({what})")
+    model.load_state_dict(state, strict=False)
 
 
 # The shipped default (depth/weights/compact.pt, docs/model_card.md): what learned modes load unless told otherwise.

@@ -11,8 +11,11 @@ from dataclasses import dataclass
 
 from recon.errors import ReconError
 
+from .geometry import SPACINGS
+
 FUSIONS = ("adaptive", "concat")
 CONTEXT_BLOCKS = ("bottleneck", "basic")
+ENCODERS = ("resnet", "efficientnet-lite0")
 
 
 @dataclass(frozen=True)
@@ -23,7 +26,15 @@ class ESTConfig:
     image_width: int = 320
     image_height: int = 256
     num_planes: int = 64
-    plane_spacing: str = "linear"  # "linear" (paper) or "inverse"
+    plane_spacing: str = "linear"  # "linear" (paper), "inverse" or "log" (same relative step everywhere)
+    # Image encoder: "resnet" (the paper: SPP matching features + a ResNet ContextNet, both from scratch
+    # or external weights) or "efficientnet-lite0" (one ImageNet-pretrained encoder feeds an FPN for
+    # the matching features and the ContextNet decoder; its first blocks and every BatchNorm are frozen)
+    encoder: str = "resnet"
+    encoder_frozen_blocks: int = 8  # efficientnet-lite0: stem + this many MBConv blocks never train
+    # Matching-volume metadata (SimpleRecon-style): per source and plane, the feature dot product
+    # and the source-visibility mask join the raw volume
+    match_metadata: bool = False
     # SPP matching features (PSMNet style) at 1/4 resolution
     feature_channels: int = 32
     feature_stem_channels: int = 32
@@ -52,8 +63,10 @@ class ESTConfig:
             raise ReconError(f"depth config: fusion must be one of {FUSIONS}, got {self.fusion!r}")
         if self.context_block not in CONTEXT_BLOCKS:
             raise ReconError(f"depth config: context_block must be one of {CONTEXT_BLOCKS}")
-        if self.plane_spacing not in ("linear", "inverse"):
-            raise ReconError(f"depth config: plane_spacing must be linear or inverse, got {self.plane_spacing!r}")
+        if self.plane_spacing not in SPACINGS:
+            raise ReconError(f"depth config: plane_spacing must be one of {SPACINGS}, got {self.plane_spacing!r}")
+        if self.encoder not in ENCODERS:
+            raise ReconError(f"depth config: encoder must be one of {ENCODERS}, got {self.encoder!r}")
         if self.image_width % 32 or self.image_height % 32:
             raise ReconError(f"depth config: image size {self.image_width}x{self.image_height} "
                              "must be a multiple of 32 (ResNet strides)")
@@ -100,13 +113,19 @@ COMPACT = ESTConfig(
     refine_channels=(16, 8),
 )
 
+# The default from v2 on (docs/depth.md, "The lite configuration"): an ImageNet-pretrained
+# EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata; EST parts as in compact.
+LITE = COMPACT.replace(
+    name="lite", num_planes=64, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,
+    match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16))
+
 # Smallest network with every part, for tests and smoke runs (not a shipped configuration).
 TINY = COMPACT.replace(
     name="tiny", image_width=96, image_height=64, num_planes=16, volume_channels=8, feature_channels=8,
     feature_stem_channels=8, feature_block_channels=(8, 12, 16, 16), spp_branch_channels=4, context_stem_channels=8,
     context_block_widths=(8, 12, 16, 24), context_decoder_channels=(16, 16), refine_channels=(8, 8))
 
-CONFIGS = {"paper": PAPER, "compact": COMPACT}
+CONFIGS = {"paper": PAPER, "compact": COMPACT, "lite": LITE}
 
 
 def get_config(name: str) -> ESTConfig:

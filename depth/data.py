@@ -11,10 +11,13 @@ from typing import Iterable, Iterator
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch.utils.data import Dataset, IterableDataset
 
 from recon.errors import ReconError
 from recon.scan import Scan
+
+from .geometry import scale_intrinsics
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,7 @@ class ClipOptions:
     saturation: float = 0.2
     gamma: float = 0.2
     depth_margin: float = 0.1  # range from GT: [min * (1 - m), max * (1 + m)] when metadata has none
+    keep_orientation: bool = True  # portrait scans get a portrait clip (width and height swapped)
 
 
 def _augment(images: torch.Tensor, opts: ClipOptions, gen: torch.Generator) -> torch.Tensor:
@@ -52,7 +56,8 @@ def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | 
     """One clip as tensors: images (V, 3, H, W) in [0, 1], K (3, 3) at H x W, camera_to_world
     (V, 4, 4), depth (V, H, W) metres (0 = invalid), depth_range (2,)."""
     idx = [start + k * opts.frame_gap for k in range(opts.clip_length)]
-    net = scan.resized(opts.width, opts.height)
+    portrait = opts.keep_orientation and (scan.intrinsics.height > scan.intrinsics.width) != (opts.height > opts.width)
+    net = scan.resized(opts.height, opts.width) if portrait else scan.resized(opts.width, opts.height)
     images, depths = [], []
     for i in idx:
         images.append(torch.from_numpy(np.ascontiguousarray(net.image(i))).permute(2, 0, 1).float() / 255.0)
@@ -74,6 +79,19 @@ def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | 
     return {"images": images, "K": torch.from_numpy(net.intrinsics.K).float(),
             "camera_to_world": torch.from_numpy(scan.camera_to_world[idx]).float(),
             "depth": depth, "depth_range": torch.tensor([lo, hi], dtype=torch.float32)}
+
+
+def resize_clip(batch: dict, width: int, height: int) -> dict:
+    """A clip batch at another size: images area-averaged, depth nearest (as `Scan.resized`), K following.
+
+    batch: images (B, V, 3, H, W), depth (B, V, H, W), K (B, 3, 3) -> the same keys at height x width.
+    """
+    b, v, _, h, w = batch["images"].shape
+    if (w, h) == (width, height):
+        return batch
+    images = F.interpolate(batch["images"].flatten(0, 1), (height, width), mode="area").unflatten(0, (b, v))
+    depth = F.interpolate(batch["depth"], (height, width), mode="nearest")
+    return {**batch, "images": images, "depth": depth, "K": scale_intrinsics(batch["K"], width / w, height / h)}
 
 
 def _clip_starts(scan: Scan, opts: ClipOptions) -> range:
@@ -109,10 +127,12 @@ class ClipDataset(Dataset):
 
 
 class StreamingClips(IterableDataset):
-    """Clips drawn from an iterable of scans as it yields them (every clip of each scan, in order)."""
+    """Clips drawn from an iterable of scans as it yields them (every clip of each scan, in order).
+    `describe` says what the stream is, for checkpoint metadata."""
 
-    def __init__(self, scans: Iterable[Scan], opts: ClipOptions = ClipOptions(), seed: int = 0):
-        self.scans, self.opts, self.seed = scans, opts, seed
+    def __init__(self, scans: Iterable[Scan], opts: ClipOptions = ClipOptions(), seed: int = 0,
+                 describe: dict | None = None):
+        self.scans, self.opts, self.seed, self.about = scans, opts, seed, dict(describe or {})
 
     def __iter__(self) -> Iterator[dict]:
         gen = torch.Generator().manual_seed(self.seed)
@@ -122,5 +142,5 @@ class StreamingClips(IterableDataset):
                 yield make_clip(scan, start, self.opts, gen)
 
     def describe(self) -> dict:
-        return {"stream": type(self.scans).__name__, "clip_length": self.opts.clip_length,
+        return {"stream": type(self.scans).__name__, **self.about, "clip_length": self.opts.clip_length,
                 "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height]}

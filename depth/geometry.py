@@ -9,7 +9,29 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-SPACINGS = ("linear", "inverse")
+SPACINGS = ("linear", "inverse", "log")
+
+
+def _warp_depth(depth: torch.Tensor, spacing: str) -> torch.Tensor:
+    """The coordinate in which planes are evenly spaced: depth, inverse depth or log depth."""
+    if spacing == "linear":
+        return depth
+    if spacing == "inverse":
+        return 1.0 / depth.clamp_min(1e-6)
+    if spacing == "log":
+        return torch.log(depth.clamp_min(1e-6))
+    raise ValueError(f"unknown plane spacing {spacing!r} (expected one of {SPACINGS})")
+
+
+def _unwarp_depth(x: torch.Tensor, spacing: str) -> torch.Tensor:
+    """Inverse of `_warp_depth`."""
+    if spacing == "linear":
+        return x
+    if spacing == "inverse":
+        return 1.0 / x
+    if spacing == "log":
+        return torch.exp(x)
+    raise ValueError(f"unknown plane spacing {spacing!r} (expected one of {SPACINGS})")
 
 
 def depth_planes(min_depth: torch.Tensor, max_depth: torch.Tensor, num_planes: int,
@@ -17,15 +39,11 @@ def depth_planes(min_depth: torch.Tensor, max_depth: torch.Tensor, num_planes: i
     """Depth values of `num_planes` fronto-parallel planes between min and max depth.
 
     min_depth, max_depth: (B,) -> (B, D). `linear` spaces planes evenly in depth (the
-    paper), `inverse` evenly in inverse depth (denser near the camera).
+    paper), `inverse` evenly in inverse depth (denser near the camera), `log` evenly in
+    log depth (the same relative step at every depth).
     """
-    if spacing not in SPACINGS:
-        raise ValueError(f"unknown plane spacing {spacing!r} (expected one of {SPACINGS})")
     steps = torch.linspace(0.0, 1.0, num_planes, dtype=min_depth.dtype, device=min_depth.device)
-    lo, hi = min_depth[:, None], max_depth[:, None]
-    if spacing == "linear":
-        return lo + (hi - lo) * steps
-    return 1.0 / (1.0 / lo + (1.0 / hi - 1.0 / lo) * steps)
+    return depth_at_index(steps[None] * (num_planes - 1), min_depth, max_depth, num_planes, spacing)
 
 
 def plane_index(depth: torch.Tensor, min_depth: torch.Tensor, max_depth: torch.Tensor, num_planes: int,
@@ -35,14 +53,8 @@ def plane_index(depth: torch.Tensor, min_depth: torch.Tensor, max_depth: torch.T
     depth: (B, ...) ; min_depth, max_depth: (B,) -> (B, ...)
     """
     shape = (-1,) + (1,) * (depth.dim() - 1)
-    lo, hi = min_depth.view(shape), max_depth.view(shape)
-    if spacing == "linear":
-        t = (depth - lo) / (hi - lo)
-    elif spacing == "inverse":
-        t = (1.0 / depth.clamp_min(1e-6) - 1.0 / lo) / (1.0 / hi - 1.0 / lo)
-    else:
-        raise ValueError(f"unknown plane spacing {spacing!r}")
-    return t * (num_planes - 1)
+    lo, hi = _warp_depth(min_depth.view(shape), spacing), _warp_depth(max_depth.view(shape), spacing)
+    return (_warp_depth(depth, spacing) - lo) / (hi - lo) * (num_planes - 1)
 
 
 def depth_at_index(index: torch.Tensor, min_depth: torch.Tensor, max_depth: torch.Tensor, num_planes: int,
@@ -52,13 +64,8 @@ def depth_at_index(index: torch.Tensor, min_depth: torch.Tensor, max_depth: torc
     index: (B, ...) ; min_depth, max_depth: (B,) -> (B, ...)
     """
     shape = (-1,) + (1,) * (index.dim() - 1)
-    lo, hi = min_depth.view(shape), max_depth.view(shape)
-    t = index / (num_planes - 1)
-    if spacing == "linear":
-        return lo + (hi - lo) * t
-    if spacing == "inverse":
-        return 1.0 / (1.0 / lo + (1.0 / hi - 1.0 / lo) * t)
-    raise ValueError(f"unknown plane spacing {spacing!r}")
+    lo, hi = _warp_depth(min_depth.view(shape), spacing), _warp_depth(max_depth.view(shape), spacing)
+    return _unwarp_depth(lo + (hi - lo) * index / (num_planes - 1), spacing)
 
 
 def scale_intrinsics(K: torch.Tensor, scale_x: float, scale_y: float) -> torch.Tensor:

@@ -12,25 +12,20 @@ plane near the chosen one. Invalid pixels are 0.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import collections
+from typing import Iterator
 
 import torch
 import torch.nn.functional as F
 
+from recon.scan import Scan
+
+from .device import resolve_device
 from .geometry import depth_at_index, depth_planes, plane_sweep_warp
+from .options import DepthOptions, FrameDepth, PlaneSweepOptions, check_scan, frame_sources, scan_depth_range
+from .views import image_tensor
 
 
-@dataclass(frozen=True)
-class PlaneSweepOptions:
-    num_planes: int = 64
-    spacing: str = "inverse"
-    ncc_window: int = 7
-    aggregation_window: int = 5
-    min_score: float = 0.5  # NCC of the chosen plane
-    min_texture: float = 4e-4  # variance of the reference window, intensities in [0, 1]
-    min_agreeing_sources: int = 2
-    agreement_planes: float = 2.0
-    width: int = 320  # working width (height follows the aspect ratio)
 
 
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:
@@ -102,3 +97,36 @@ def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor,
             & (needed > 0) & (agreeing >= needed) & (best > 0) & (best < d - 1))
     zero = torch.zeros_like(depth)
     return torch.where(keep, depth, zero), torch.where(keep, score.clamp(0, 1), zero)
+
+
+def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),
+                   skip: frozenset[int] = frozenset()) -> Iterator[FrameDepth]:
+    """The classical baseline over every frame but `skip` (working width `opts.planesweep.width`)."""
+    check_scan(scan)
+    lo, hi = scan_depth_range(scan, opts.depth_range)
+    sources = frame_sources(scan, opts.sources)
+    intr = scan.intrinsics
+    width = min(opts.planesweep.width, intr.width)
+    height = max(8, int(round(intr.height * width / intr.width)))
+    work = scan.resized(width, height)
+    device = resolve_device(opts.device)
+    K = torch.from_numpy(work.intrinsics.K).float().to(device)
+    poses = torch.from_numpy(scan.camera_to_world).float().to(device)
+    cache: collections.OrderedDict[int, torch.Tensor] = collections.OrderedDict()
+
+    def gray(i: int) -> torch.Tensor:
+        if i not in cache:
+            cache[i] = to_gray(image_tensor(work, i).to(device))
+            if len(cache) > 12:
+                cache.popitem(last=False)
+        return cache[i]
+
+    for i, srcs in sources.items():
+        if i in skip:
+            continue
+        depth, conf = plane_sweep_depth(gray(i), torch.stack([gray(j) for j in srcs]), K, poses[i], poses[srcs],
+                                        (lo, hi), opts.planesweep)
+        size = (intr.height, intr.width)
+        depth = F.interpolate(depth[None, None], size, mode="nearest")[0, 0]
+        conf = F.interpolate(conf[None, None], size, mode="nearest")[0, 0]
+        yield FrameDepth(i, scan.frames[i].name, depth.cpu().numpy(), conf.cpu().numpy(), list(srcs))

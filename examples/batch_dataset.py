@@ -5,7 +5,7 @@
 import argparse
 
 from apps.batch import run_batch
-from recon.pipeline import RunConfig
+from apps.pipeline import InputConfig, RunConfig
 
 
 def main() -> None:
@@ -15,7 +15,7 @@ def main() -> None:
     p.add_argument("--engine", choices=["local", "ray"], default="local")
     p.add_argument("--workers", type=int, default=1)
     args = p.parse_args()
-    summary = run_batch(args.dataset, args.out, RunConfig(input="", out="", mode="planesweep"),
+    summary = run_batch(args.dataset, args.out, RunConfig(InputConfig(), ""),
                         engine=args.engine, workers=args.workers,
                         on_result=lambda r: print(r["name"], r["status"], r.get("error", "")))
     print(summary["counts"], {k: v for k, v in summary["mean"].items() if v is not None})

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from depth.checkpoint import DEFAULT_WEIGHTS, trained_depth_range  # noqa: E402  (after the path set-up)
-from recon.results import DEFAULT_ROWS  # noqa: E402
+from experiments.results_7scenes import DEFAULT_ROWS  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
 
@@ -53,8 +53,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from poses.readers import open_scan
-    from recon.results import TableOptions, depth_table, markdown_table, mesh_markdown, write_results
+    from recon.readers import open_scan
+    from experiments.results_7scenes import TableOptions, depth_table, markdown_table, mesh_markdown, write_results
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -1,6 +1,6 @@
 """Reconstruct one input (video, image folder or recorded scan) through the Python API.
 
-    python examples/reconstruct.py INPUT OUT_DIR [--mode planesweep]
+    python examples/reconstruct.py INPUT OUT_DIR [--mode estm|joint|independent|planesweep]
 
 The same as `recon run INPUT --out OUT_DIR`, for use from a notebook or another program:
 each stage can also be called alone (Pipeline.stage_scan, stage_depth, stage_fusion, ...).
@@ -8,17 +8,19 @@ each stage can also be called alone (Pipeline.stage_scan, stage_depth, stage_fus
 import argparse
 import json
 
-from recon.pipeline import Pipeline, RunConfig
+from apps.pipeline import InputConfig, Pipeline, RunConfig
+from depth.options import DepthOptions
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("input")
     p.add_argument("out")
-    p.add_argument("--mode", default="planesweep", help="estm needs weights (--weights); planesweep needs none")
-    p.add_argument("--weights", default=None)
+    p.add_argument("--mode", default="estm", help="estm (default, the shipped network), joint, independent, planesweep")
+    p.add_argument("--weights", default=None, help="a checkpoint instead of the shipped weights")
     args = p.parse_args()
-    report = Pipeline(RunConfig(input=args.input, out=args.out, mode=args.mode, weights=args.weights)).run()
+    config = RunConfig(InputConfig(args.input), args.out, depth=DepthOptions(mode=args.mode, weights=args.weights))
+    report = Pipeline(config.validate()).run()
     print(json.dumps({k: report[k] for k in ("depth", "mesh", "poses", "timing") if k in report}, indent=1))
     print(f"mesh: {args.out}/mesh.ply  report: {args.out}/report.html")
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from recon.geometry import intrinsic_matrix, pixel_rays
+
 BACKGROUND = np.array([245, 245, 245], dtype=np.float32)
 
 
@@ -35,9 +37,8 @@ def render_mesh(mesh: trimesh.Trimesh, camera_to_world: np.ndarray, width: int =
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3c.Tensor(np.asarray(mesh.vertices, np.float32)), o3c.Tensor(np.asarray(mesh.faces, np.uint32)))
     f = 0.5 * width / np.tan(np.radians(fov_deg) / 2)
-    u, v = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
-    dirs = np.stack([(u - width / 2) / f, (v - height / 2) / f, np.ones_like(u)], -1).reshape(-1, 3)
-    dirs = dirs @ camera_to_world[:3, :3].T.astype(np.float32)
+    K = intrinsic_matrix(f, f, (width - 1) / 2, (height - 1) / 2)
+    dirs = pixel_rays(K, width, height, np.float32).reshape(-1, 3) @ camera_to_world[:3, :3].T.astype(np.float32)
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     dirs = dirs.astype(np.float32)
     origins = np.broadcast_to(camera_to_world[:3, 3].astype(np.float32), dirs.shape).copy()

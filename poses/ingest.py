@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from recon import io as rio
+from recon.io import working_size
 from recon.errors import ReconError
 
 log = logging.getLogger(__name__)
@@ -76,12 +77,6 @@ def sharpness(rgb_or_gray: np.ndarray) -> float:
     """Variance of the Laplacian: high for crisp edges, low for motion blur or defocus."""
     gray = rgb_or_gray if rgb_or_gray.ndim == 2 else cv2.cvtColor(rgb_or_gray, cv2.COLOR_RGB2GRAY)
     return float(cv2.Laplacian(gray, cv2.CV_64F).var())
-
-
-def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:
-    """(w, h) with the long side at most `max_size`, aspect kept, even dimensions."""
-    scale = min(1.0, max_size / max(width, height))
-    return max(2, int(round(width * scale / 2)) * 2), max(2, int(round(height * scale / 2)) * 2)
 
 
 def blurry_indices(values: list[float], window: int, ratio: float) -> list[int]:
@@ -185,13 +180,13 @@ def _keep(best: tuple[int, IngestedFrame, np.ndarray], frames: list[IngestedFram
 
 def _scan_format(path: Path) -> str | None:
     """The reader that recognises `path` as a recorded scan, or None for a plain video/image folder."""
-    from poses.readers import READERS
+    from recon.readers import READERS
 
     return next((r.NAME for r in READERS if r.detect(path)), None)
 
 
 def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> IngestResult:
-    from poses.readers._common import numbered_files
+    from recon.readers._common import numbered_files
 
     files = numbered_files(folder, IMAGE_SUFFIXES)[:: config.stride][: config.max_frames]
     frames, size, first_size = [], None, None
@@ -216,7 +211,7 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
 
 
 def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> IngestResult:
-    from poses.readers import open_scan
+    from recon.readers import open_scan
 
     scan = open_scan(path, fmt).select(0, config.stride, config.max_frames)
     src = scan.intrinsics

@@ -292,7 +292,7 @@ def sparse_depths(reconstruction) -> dict[str, np.ndarray]:
 
 def scan_from_sfm(result: SfMResult) -> Scan:
     """The kept model as a canonical scan: unknown scale, registered frames only, distortion on the scan."""
-    from poses.readers.colmap import scan_from_reconstruction
+    from recon.readers.colmap import scan_from_reconstruction
 
     scan = scan_from_reconstruction(result.reconstruction, result.image_dir, source_format="sfm")
     scan.metadata.metric_scale = False

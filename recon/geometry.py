@@ -91,17 +91,24 @@ def world_to_camera_to_pose(rotation: np.ndarray, translation: np.ndarray) -> np
     return invert_pose(w2c)
 
 
-def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Depth map -> camera-frame points.
+def backproject_pixels(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels at depths -> camera-frame points: the one ray back-projection everything uses.
 
-    depth_m: (H, W) metres; K: (3, 3) -> (H, W, 3) points, z = depth.
+    u, v, z: (...) pixel coordinates (integer = pixel centre) and z-depth; K: (3, 3) -> (..., 3).
     """
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, np.broadcast_to(z, np.shape(u))], -1)
+
+
+def pixel_rays(K: np.ndarray, width: int, height: int, dtype=np.float64) -> np.ndarray:
+    """Camera-frame ray through every pixel centre, scaled to z = 1: (H, W, 3)."""
+    v, u = np.mgrid[0:height, 0:width].astype(dtype)
+    return backproject_pixels(u, v, np.ones((), dtype), np.asarray(K, dtype))
+
+
+def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Depth map -> camera-frame points. depth_m: (H, W) metres; K: (3, 3) -> (H, W, 3), z = depth."""
     h, w = depth_m.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    z = depth_m.astype(np.float64)
-    x = (u - K[0, 2]) / K[0, 0] * z
-    y = (v - K[1, 2]) / K[1, 1] * z
-    return np.stack([x, y, z], axis=-1)
+    return pixel_rays(K, w, h) * depth_m.astype(np.float64)[..., None]
 
 
 def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -170,3 +170,18 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     os.replace(tmp, path)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def working_size(width: int, height: int, max_size: int) -> tuple[int, int]:
+    """(w, h) with the long side at most `max_size`, aspect kept, even dimensions."""
+    scale = min(1.0, max_size / max(width, height))
+    return max(2, int(round(width * scale / 2)) * 2), max(2, int(round(height * scale / 2)) * 2)
+
+
+def remove_path(path: str | os.PathLike) -> None:
+    """Delete a file or folder without ever following a link: a link is removed itself, never its target."""
+    path = Path(path)
+    if path.is_symlink() or path.is_file():
+        path.unlink(missing_ok=True)
+    elif path.is_dir():
+        shutil.rmtree(path)  # rmtree unlinks links inside the tree and does not descend into them

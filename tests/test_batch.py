@@ -6,7 +6,9 @@ from pathlib import Path
 import pytest
 
 from apps.batch import run_batch
-from recon.pipeline import RunConfig
+from apps.pipeline import InputConfig, RunConfig
+from depth.options import DepthOptions
+from recon.keyframes import KeyframeConfig
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +26,7 @@ def dataset(tmp_path_factory) -> Path:
 
 
 def template():
-    return RunConfig(input="", out="", mode="planesweep", keyframe_threshold=0.05)
+    return RunConfig(InputConfig(), "", keyframes=KeyframeConfig(0.05), depth=DepthOptions(mode="planesweep"))
 
 
 @pytest.fixture(scope="module")

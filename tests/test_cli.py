@@ -10,8 +10,8 @@ import pytest
 from apps.cli import main
 from recon.scan import save_scan
 
-from box_room import box_room_scan
-from format_writers import WRITERS
+from fixtures.box_room import box_room_scan
+from fixtures.format_writers import WRITERS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -52,7 +52,7 @@ def test_fuse_eval_convert_info(scan_dir, tmp_path, capsys):
 
 
 def test_eval_depth_and_poses(scan_dir, tmp_path, capsys):
-    from poses.readers import open_scan
+    from recon.readers import open_scan
     from recon.io import save_depth_map
 
     scan = open_scan(scan_dir)

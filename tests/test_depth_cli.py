@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from depth.synthetic_planes import plane_scan
+from recon.plane_scene import plane_scan
 from recon.io import load_depth_map
 from recon.scan import save_scan
 
@@ -17,7 +17,8 @@ def scan_dir(tmp_path_factory):
 
 def test_recon_depth_planesweep_writes_maps(scan_dir, tmp_path, capsys):
     out = tmp_path / "depth"
-    assert main(["-q", "depth", str(scan_dir), "--out", str(out), "--mode", "planesweep", "--max-frames", "4"]) == 0
+    assert main(["-q", "depth", str(scan_dir), "--out", str(out), "--mode", "planesweep", "--max-frames", "4",
+                 "--keyframe-distance", "0"]) == 0
     summary = json.loads((out / "depth.json").read_text())
     assert [f["name"] for f in summary["frames"]] == ["000000", "000001", "000002", "000003"]
     depth = load_depth_map(out, "000001")

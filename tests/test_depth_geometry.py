@@ -88,7 +88,7 @@ def test_epipolar_warp_into_same_camera_is_identity():
         torch.testing.assert_close(warped, vol, atol=1e-9, rtol=0)
 
 
-@pytest.mark.parametrize("spacing", ["linear", "inverse"])
+@pytest.mark.parametrize("spacing", ["linear", "inverse", "log"])
 def test_epipolar_warp_translated_camera_matches_analytic_shift(spacing):
     d, h, w = 10, 12, 40
     fx, cx, cy = 30.0, 19.5, 5.5
@@ -127,10 +127,12 @@ def test_depth_planes_spacing_and_index_inverse():
     torch.testing.assert_close(lin[1], torch.tensor([1.0, 1.75, 2.5, 3.25, 4.0]))
     inv = depth_planes(lo, hi, 5, "inverse")
     torch.testing.assert_close(1.0 / inv[1], torch.tensor([1.0, 0.8125, 0.625, 0.4375, 0.25]))
-    for spacing, planes in (("linear", lin), ("inverse", inv)):
+    log = depth_planes(lo, hi, 5, "log")
+    torch.testing.assert_close(log[1], torch.tensor([1.0, 2 ** 0.5, 2.0, 2 * 2 ** 0.5, 4.0]))
+    for spacing, planes in (("linear", lin), ("inverse", inv), ("log", log)):
         torch.testing.assert_close(plane_index(planes, lo, hi, 5, spacing), torch.arange(5.0).expand(2, 5))
     with pytest.raises(ValueError):
-        depth_planes(lo, hi, 5, "log")
+        depth_planes(lo, hi, 5, "cubic")
 
 
 def test_scale_intrinsics_matches_scan_convention():

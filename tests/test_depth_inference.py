@@ -7,11 +7,13 @@ import torch
 
 from depth.checkpoint import save_checkpoint
 from depth.config import TINY
-from depth.inference import (DepthEstimator, DepthOptions, TemporalMemory, estimate_depth, network_view,
-                             to_scan_pixels)
+from depth.estimator import DepthEstimator, TemporalMemory
+from depth.inference import estimate_depth
 from depth.model import ESTNet
-from depth.selection import pose_distance, select_keyframes, select_sources
-from depth.synthetic_planes import lateral_path, plane_scan
+from depth.options import DepthOptions
+from depth.views import network_view, to_scan_pixels
+from recon.keyframes import KeyframeConfig, SourceConfig, pose_distance, select_keyframes, select_sources
+from recon.plane_scene import lateral_path, plane_scan
 from recon.errors import ReconError
 from recon.io import load_confidence_map, load_depth_map
 
@@ -30,8 +32,8 @@ def scan():
     return plane_scan(5, 120, 90, step=0.08)  # not the network size: resized in and out
 
 
-def _run(estimator, scan, **kw):
-    return list(estimator.run(scan, DepthOptions(**kw)))
+def _run(estimator, scan, window="offline", **kw):
+    return list(estimator.run(scan, DepthOptions(sources=SourceConfig(window=window), **kw)))
 
 
 def test_estm_memory_holds_last_n_and_drops_oldest(estimator, scan):
@@ -73,7 +75,7 @@ def test_estimate_depth_writes_maps_and_summary(tmp_path, scan):
     weights = save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY, {"note": "random"})
     out = tmp_path / "depth"
     calls = []
-    summary = estimate_depth(scan, out, DepthOptions(mode="estm"), weights=weights,
+    summary = estimate_depth(scan, out, DepthOptions(mode="estm", weights=str(weights)),
                              progress=lambda i, n: calls.append((i, n)))
     assert calls[-1] == (5, 5) and summary["config"] == "tiny"
     expected = select_sources(scan.camera_to_world)[2]
@@ -92,8 +94,8 @@ def test_estimate_depth_writes_maps_and_summary(tmp_path, scan):
 
 
 def test_bad_input_is_refused(tmp_path, estimator, scan):
-    with pytest.raises(ReconError, match="needs network weights"):
-        estimate_depth(scan, tmp_path / "x", DepthOptions(mode="estm"))
+    with pytest.raises(ReconError, match="depth weights file not found"):
+        estimate_depth(scan, tmp_path / "x", DepthOptions(mode="estm", weights=str(tmp_path / "none.pt")))
     with pytest.raises(ReconError, match="unknown depth mode"):
         estimate_depth(scan, tmp_path / "x", DepthOptions(mode="magic"))
     bad_pose = dataclasses.replace(scan, frames=[dataclasses.replace(f) for f in scan.frames])
@@ -127,16 +129,16 @@ def test_source_selection_prefers_useful_baseline():
         assert len(srcs) == 2 and i not in srcs
         # 0.03 m steps: the sources sit about 0.15 m (5 frames) away, never at the nearest neighbours.
         assert all(abs(np.linalg.norm(poses[i, :3, 3] - poses[j, :3, 3]) - 0.15) < 0.04 for j in srcs)
-    online = select_sources(poses, window="online")
+    online = select_sources(poses, SourceConfig(window="online"))
     assert all(j < i for i, srcs in online.items() for j in srcs)
     assert online[0] == [] and len(online[6]) == 2
     # Frames closer than min_baseline are dropped rather than used as a fallback.
     crawl = lateral_path(8, step=0.002, yaw_per_frame=0.0)
     crawl[:, 1, 3] = 0.0
-    assert all(srcs == [] for srcs in select_sources(crawl, search=3).values())
-    keys = select_keyframes(poses, 0.1)
-    assert keys[0] == 0 and all(pose_distance(poses[a], poses[b]) >= 0.1 for a, b in zip(keys, keys[1:]))
-    assert all(pose_distance(poses[a], poses[j]) < 0.1 for a, b in zip(keys, keys[1:]) for j in range(a + 1, b))
+    assert all(srcs == [] for srcs in select_sources(crawl, SourceConfig(source_window=3)).values())
+    keys = select_keyframes(poses, KeyframeConfig(0.1))
+    assert keys[0] == 0 and all(pose_distance(poses[a], poses[b])[0] >= 0.1 for a, b in zip(keys, keys[1:]))
+    assert all(pose_distance(poses[a], poses[j])[0] < 0.1 for a, b in zip(keys, keys[1:]) for j in range(a + 1, b))
 
 
 def test_resume_reuses_finished_frames_only_with_same_settings(tmp_path, scan):
@@ -208,7 +210,7 @@ def test_crop_fit_gives_no_depth_outside_the_window(estimator):
         assert (f.depth > 0).all()
         assert (c.depth[:, :5] == 0).all() and (c.confidence[:, :5] == 0).all()
         assert (c.depth[:, 60:140] > 0).all()
-    with pytest.raises(ReconError, match="unknown fit"):
+    with pytest.raises(ReconError, match="unknown depth fit"):
         _run(estimator, wide, fit="pad")
 
 

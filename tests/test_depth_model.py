@@ -4,7 +4,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from depth.config import COMPACT, PAPER, TINY, ESTConfig, get_config
-from depth.loss import multi_stage_l1, stage_weights
+from depth.loss import multi_stage_loss, stage_weights
 from depth.model import ESTNet
 from depth.model.context import ContextNet
 from depth.model.volumes import soft_argmax_depth
@@ -75,7 +75,7 @@ def test_every_parameter_receives_a_gradient(fusion):
     images, K, poses, rng = _window(cfg, batch=1, views=5)
     gt = torch.rand(1, 3, cfg.image_height, cfg.image_width) * 3 + 1.5
     outs = net(images, K, poses, rng)
-    loss, per_stage = multi_stage_l1([o.depths for o in outs], gt)
+    loss, per_stage = multi_stage_loss([o.depths for o in outs], gt)
     loss.backward()
     missing = [n for n, p in net.named_parameters() if p.grad is None or not torch.any(p.grad != 0)]
     assert not missing, f"no gradient for {missing}"
@@ -99,7 +99,7 @@ def test_loss_weights_and_invalid_pixels():
     gt[0, 0, :2] = 2.0  # half the pixels valid
     pred_full = torch.full((1, 1, 4, 4), 3.0)
     pred_low = torch.full((1, 1, 2, 2), 2.5)
-    loss, per_stage = multi_stage_l1([[pred_low, pred_low, pred_full, pred_full]], gt)
+    loss, per_stage = multi_stage_loss([[pred_low, pred_low, pred_full, pred_full]], gt)
     assert per_stage == pytest.approx([0.5, 0.5, 1.0, 1.0])
     assert float(loss) == pytest.approx(0.512 * 0.5 + 0.64 * 0.5 + 0.8 + 1.0)
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from depth.planesweep import PlaneSweepOptions, plane_sweep_depth, to_gray
-from depth.synthetic_planes import plane_scan
+from recon.plane_scene import plane_scan
 
 
 def _inputs(scan):
@@ -44,8 +44,9 @@ def test_planesweep_rejects_textureless_and_wrong_geometry():
 
 @pytest.mark.data
 def test_planesweep_on_real_iclnuim_frames(iclnuim):
-    from depth.inference import DepthOptions, run_planesweep
-    from poses.readers import open_scan
+    from depth.options import DepthOptions
+    from depth.planesweep import run_planesweep
+    from recon.readers import open_scan
 
     scan = open_scan(iclnuim).select(0, 5, 9)
     results = list(run_planesweep(scan, DepthOptions(mode="planesweep", depth_range=(0.3, 6.0)),

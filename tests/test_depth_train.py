@@ -5,7 +5,7 @@ import torch
 from depth.checkpoint import load_checkpoint
 from depth.config import TINY
 from depth.data import ClipDataset, ClipOptions, StreamingClips
-from depth.synthetic_planes import plane_scan
+from recon.plane_scene import plane_scan
 from depth.train import TrainOptions, train
 from recon.errors import ReconError
 
@@ -97,7 +97,7 @@ import os, sys, torch
 torch.set_num_threads(1)
 from depth.config import TINY
 from depth.data import ClipDataset, ClipOptions
-from depth.synthetic_planes import plane_scan
+from recon.plane_scene import plane_scan
 from depth.train import TrainOptions, train
 ds = ClipDataset([plane_scan(7, 96, 64, step=0.08)], ClipOptions(width=96, height=64, augment=False))
 r = train(ds, sys.argv[1], TrainOptions(device="cpu", max_steps=2, epochs=5, val_every=0, checkpoint_every=0),

@@ -8,7 +8,7 @@ from fusion.tsdf import TSDFConfig, TSDFIntegrator, fuse_scan
 from recon.errors import ReconError
 from recon.io import save_depth_map
 
-from box_room import box_room_mesh, box_room_scan
+from fixtures.box_room import box_room_mesh, box_room_scan
 
 
 @pytest.fixture(scope="module")

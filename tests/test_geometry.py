@@ -6,7 +6,7 @@ from recon.errors import ReconError
 from recon.geometry import (backproject, check_pose, invert_pose, opencv_to_opengl, opengl_to_opencv, project,
                             quaternion_to_rotation, reproject_depth, transform_points, world_to_camera_to_pose)
 
-from box_room import box_room_scan, look_at, room_depth
+from fixtures.box_room import box_room_scan, look_at, room_depth
 
 
 def random_pose(rng):

@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from recon.errors import ReconError
-from recon.keyframes import KeyframeConfig, pose_distance, select_keyframes, select_sources
+from recon.keyframes import KeyframeConfig, SourceConfig, pose_distance, select_keyframes, select_sources
 
 
 def line_poses(n: int, step: float) -> np.ndarray:
@@ -37,7 +37,7 @@ def test_pose_distance_translation_and_rotation():
 
 def test_keyframes_every_tenth_centimetre_step():
     poses = line_poses(51, 0.01)  # 1 cm per frame along x
-    keys = select_keyframes(poses, KeyframeConfig(min_pose_distance=0.0999))  # clear of float round-off
+    keys = select_keyframes(poses, KeyframeConfig(keyframe_distance=0.0999))  # clear of float round-off
     assert keys == [0, 10, 20, 30, 40, 50]
 
 
@@ -57,13 +57,18 @@ def test_keyframes_reject_bad_shape():
 
 def test_sources_prefer_the_optimal_baseline():
     poses = line_poses(101, 0.01)
-    keys = select_keyframes(poses, KeyframeConfig(min_pose_distance=0.0499))  # every 5 cm
-    cfg = KeyframeConfig(num_sources=2, source_window=4, optimal_translation=0.15)
-    sources = select_sources(poses, keys, cfg)
+    keys = select_keyframes(poses, KeyframeConfig(keyframe_distance=0.0499))  # every 5 cm
+    cfg = SourceConfig(num_sources=2, source_window=4, source_baseline=0.15)
+    sources = {keys[i]: [keys[j] for j in s] for i, s in select_sources(poses[keys], cfg).items()}
     # For the keyframe at 50 cm the best baselines are 15 cm either side (35 and 65 cm).
     assert sorted(sources[50]) == [35, 65]
     # At the start only later keyframes exist: 15 cm, then 10 cm or 20 cm (equal penalty; nearer wins).
     assert sources[0] == [15, 10]
-    online = select_sources(poses, keys, KeyframeConfig(num_sources=2, online=True))
+    online = select_sources(poses[keys], SourceConfig(num_sources=2, window="online"))
+    online = {keys[i]: [keys[j] for j in s] for i, s in online.items()}
     assert all(s < k for k, ss in online.items() for s in ss)
     assert sorted(online[50]) == [35, 40]
+    with pytest.raises(ReconError, match="source window"):
+        select_sources(poses, SourceConfig(window="sideways"))
+    with pytest.raises(ReconError, match="keyframe-distance"):
+        KeyframeConfig(keyframe_distance=-1).validate()

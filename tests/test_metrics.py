@@ -12,7 +12,7 @@ from poses.evaluate import pose_metrics, umeyama
 from recon.io import save_depth_map
 from recon.scan import Frame, Intrinsics, Scan
 
-from box_room import box_room_mesh, box_room_scan, look_at
+from fixtures.box_room import box_room_mesh, box_room_scan, look_at
 
 
 def plane(size=10.0, z=0.0):

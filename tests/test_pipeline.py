@@ -14,7 +14,9 @@ import torch
 import trimesh
 
 from recon.errors import ReconError
-from recon.pipeline import Pipeline, RunConfig, RunLock
+from apps.pipeline import InputConfig, Pipeline, RunConfig, RunLock
+from depth.options import DepthOptions
+from fusion.tsdf import TSDFConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -48,7 +50,7 @@ def recon(*args: str) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def finished_run(room, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("run") / "out"
-    Pipeline(RunConfig(input=str(room), out=str(out), mode="planesweep")).run()
+    Pipeline(RunConfig(InputConfig(str(room)), str(out), depth=DepthOptions(mode="planesweep"))).run()
     return out
 
 
@@ -74,7 +76,7 @@ def test_run_writes_every_output(finished_run):
 
 def test_rerun_skips_finished_stages_and_force_redoes(finished_run, room):
     mesh_time = (finished_run / "mesh.ply").stat().st_mtime_ns
-    pipeline = Pipeline(RunConfig(input=str(room), out=str(finished_run), mode="planesweep"))
+    pipeline = Pipeline(RunConfig(InputConfig(str(room)), str(finished_run), depth=DepthOptions(mode="planesweep")))
     pipeline.run()
     assert (finished_run / "mesh.ply").stat().st_mtime_ns == mesh_time
     pipeline.run(force=("fusion",))
@@ -82,16 +84,17 @@ def test_rerun_skips_finished_stages_and_force_redoes(finished_run, room):
     depth_time = (finished_run / "depth/depth.json").stat().st_mtime_ns
     assert depth_time == (finished_run / "depth/depth.json").stat().st_mtime_ns
     # Another voxel size changes the fusion's options: fusion and what follows rerun, depth does not.
-    Pipeline(RunConfig(input=str(room), out=str(finished_run), mode="planesweep", voxel_size=0.05)).run()
+    Pipeline(RunConfig(InputConfig(str(room)), str(finished_run), depth=DepthOptions(mode="planesweep"),
+                       fusion=TSDFConfig(voxel_size=0.05))).run()
     assert (finished_run / "depth/depth.json").stat().st_mtime_ns == depth_time
     state = json.loads((finished_run / "run.json").read_text())
-    assert state["config"]["voxel_size"] == 0.05
+    assert state["config"]["fusion"]["voxel_size"] == 0.05
 
 
 def test_second_run_in_same_folder_refuses(finished_run, room):
     with RunLock(finished_run):
         with pytest.raises(ReconError, match="another run"):
-            Pipeline(RunConfig(input=str(room), out=str(finished_run), mode="planesweep")).run()
+            Pipeline(RunConfig(InputConfig(str(room)), str(finished_run), depth=DepthOptions(mode="planesweep"))).run()
     proc_lock = RunLock(finished_run)
     with proc_lock:  # released after the first holder left
         pass
@@ -99,7 +102,7 @@ def test_second_run_in_same_folder_refuses(finished_run, room):
 
 def test_killed_run_resumes_to_the_same_mesh(room, random_weights, tmp_path):
     """SIGKILL in the middle of the ESTM depth stage, same command again: same mesh as an uninterrupted run."""
-    args = ["run", str(room), "--mode", "estm", "--weights", str(random_weights), "--keyframe-threshold", "0",
+    args = ["run", str(room), "--mode", "estm", "--weights", str(random_weights), "--keyframe-distance", "0",
             "--max-frames", "12", "--depth-range", "0.3", "8", "--quiet"]
     whole = tmp_path / "whole"
     assert recon(*args, "--out", str(whole)).returncode == 0

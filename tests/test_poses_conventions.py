@@ -5,7 +5,7 @@ import pycolmap
 import pytest
 from scipy.spatial.transform import Rotation
 
-from poses.readers import stray
+from recon.readers import stray
 from recon.geometry import (invert_pose, opencv_to_opengl, opengl_to_opencv, project, transform_points,
                             world_to_camera_to_pose)
 
@@ -22,7 +22,7 @@ def random_pose(rng) -> np.ndarray:
 def test_colmap_model_converts_to_poses_that_reproject_like_colmap(tmp_path):
     """Build a model with pycolmap, write it, read it back through the SfM conversion, and check
     that our K and camera-to-world put world points on the same pixels as COLMAP does."""
-    from poses.readers.colmap import scan_from_reconstruction
+    from recon.readers.colmap import scan_from_reconstruction
 
     (tmp_path / "images").mkdir()
     rec = pycolmap.Reconstruction()

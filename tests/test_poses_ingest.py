@@ -3,7 +3,8 @@ import cv2
 import numpy as np
 import pytest
 
-from poses.ingest import IngestConfig, blurry_indices, ingest, working_size
+from poses.ingest import IngestConfig, blurry_indices, ingest
+from recon.io import working_size
 from recon.errors import ReconError
 
 W, H, FPS = 320, 240, 30.0

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from apps.cli import main
 from poses.evaluate import pose_metrics
 from poses.ingest import IngestConfig
-from poses.readers import open_scan
+from recon.readers import open_scan
 from poses.scale import resolve_scale
 from poses.sfm import PosesConfig, SfMConfig, estimate_poses, sparse_depths
 from recon.errors import ReconError

@@ -3,8 +3,8 @@ import cv2
 import numpy as np
 import pytest
 
-from poses.readers import detect_format, open_scan
-from poses.readers import stray
+from recon.readers import detect_format, open_scan
+from recon.readers import stray
 from recon.errors import ScanFormatError
 
 VW, VH = 1280, 960  # decoded at most 960 px on the long side -> 960x720

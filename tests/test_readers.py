@@ -5,12 +5,12 @@ import cv2
 import numpy as np
 import pytest
 
-from poses.readers import detect_format, open_scan
+from recon.readers import detect_format, open_scan
 from recon.errors import ReconError
 from recon.geometry import reprojection_disagreement
 
-from box_room import box_room_scan
-from format_writers import WRITERS
+from fixtures.box_room import box_room_scan
+from fixtures.format_writers import WRITERS
 
 LOSSY = {"scannet"}  # writes JPEG
 
@@ -84,7 +84,7 @@ def test_nerfstudio_distortion_is_undone(reference, tmp_path):
 
 def test_depth_camera_resampled_onto_color_camera(tmp_path):
     """Kinect-style: depth from a narrower, smaller camera at the same centre lands on the colour grid exactly."""
-    from box_room import room_depth
+    from fixtures.box_room import room_depth
     from recon.scan import Intrinsics
 
     color = Intrinsics(52.5, 52.5, 31.5, 23.5, 64, 48)

@@ -8,7 +8,7 @@ from recon.geometry import project
 from recon.io import atomic_path, load_depth_map, save_depth_map
 from recon.scan import Intrinsics, load_scan, save_scan
 
-from box_room import box_room_scan
+from fixtures.box_room import box_room_scan
 
 
 def test_intrinsics_resize_keeps_projection_consistent():

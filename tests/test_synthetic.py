@@ -263,7 +263,7 @@ def test_cli_writes_a_scan(tmp_path, capsys):
 def test_bench_reports_frame_rates(capsys):
     import argparse
 
-    from recon.synthetic import bench
+    from apps.bench import synth as bench
 
     parser = argparse.ArgumentParser()
     bench.add_arguments(parser)

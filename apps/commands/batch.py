@@ -1,6 +1,9 @@
 """`recon batch DATASET --out DIR`: every scan of a dataset, locally or on a Ray cluster."""
 
 
+from apps import options
+
+
 def register(subparsers):
     from apps.commands.run import add_pipeline_args
 
@@ -16,8 +19,8 @@ def register(subparsers):
     p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
     p.add_argument("--cpus-per-scan", type=float, default=1.0, help="ray: CPUs each scan's task requests")
     p.add_argument("--gpus-per-scan", type=float, default=0.0, help="ray: GPUs each scan's task requests")
-    p.add_argument("--stride", type=int, default=1)
-    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--format", default="auto", help="input format of every scan (default: auto-detect)")
+    options.add_selection(p)
     add_pipeline_args(p, with_input=False)
     p.set_defaults(func=run)
 

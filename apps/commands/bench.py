@@ -1,16 +1,17 @@
 """`recon bench NAME`: benchmarks that print a table (or one JSON object with --json).
 
-Each benchmark lives beside the code it measures, in a module exposing
-`add_arguments(parser)` and `run(args) -> int`; this table maps names to modules.
+Each benchmark is a module of apps/bench/ exposing `add_arguments(parser)` and `run(args) -> int`;
+this table maps names to modules (imported only when their command runs, so `recon bench depth`
+needs torch alone).
 """
 import importlib
 
 BENCHMARKS = {
-    "fusion": ("fusion.bench", "TSDF fusion throughput against a bare Open3D loop; mesh evaluation time"),
-    "synth": ("recon.synthetic.bench", "synthetic room rendering frames/s against bare Open3D ray casting"),
-    "pipeline": ("recon.bench_pipeline", "end-to-end time and peak memory per stage (demo, 7-Scenes x100)"),
-    "depth": ("depth.bench", "EST depth network: params, MACs, peak memory, s/frame (ESTM) against plane sweep"),
-    "poses": ("poses.bench", "SfM on 200 7-Scenes frames at 640x480: time per step, global vs incremental mapper"),
+    "fusion": ("apps.bench.fusion", "TSDF fusion throughput against a bare Open3D loop; mesh evaluation time"),
+    "synth": ("apps.bench.synth", "synthetic room rendering frames/s against bare Open3D ray casting"),
+    "pipeline": ("apps.bench.pipeline", "end-to-end time and peak memory per stage (demo, 7-Scenes x100)"),
+    "depth": ("apps.bench.depth", "EST depth network: params, MACs, peak memory, s/frame (ESTM) against plane sweep"),
+    "poses": ("apps.bench.poses", "SfM on 200 7-Scenes frames at 640x480: time per step, global vs incremental mapper"),
 }
 
 

@@ -1,10 +1,11 @@
 """`recon demo`: the whole pipeline on the embedded example, a synthetic room video with exact ground truth.
 
 The example is generated deterministically on first run into examples/demo_room/
-(scan with supplied poses, GT depth and mesh, plus video.mp4 for the SfM path).
+(scan with supplied poses, GT depth and mesh, plus video.mp4 for the SfM path: `--poses colmap`).
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 EXAMPLE_DIR = Path(__file__).resolve().parents[2] / "examples" / "demo_room"
@@ -20,7 +21,6 @@ def register(subparsers):
                               description="Reconstruct the embedded example (a synthetic room video with supplied "
                                           "poses and exact ground truth), print a summary, write report.html.")
     p.add_argument("--out", default="out/demo", help="run folder (default out/demo)")
-    p.add_argument("--colmap", action="store_true", help="pose the video with pycolmap SfM instead of the supplied poses")
     add_pipeline_args(p, with_input=False)
     p.set_defaults(func=run, mode=None)
 
@@ -41,14 +41,9 @@ def run(args):
     from apps.commands.run import config_from_args, execute
 
     example = ensure_example()
-    if args.colmap:
-        args.poses = "colmap"
-        source = example / "video.mp4"
-    else:
-        source = example
-    config = config_from_args(args, str(source), args.out)
-    config.gt_mesh = config.gt_mesh or str(example / "gt_mesh.ply")
-    if args.colmap:
-        config.gt_poses = config.gt_poses or str(example)
+    sfm = args.poses == "colmap"  # the video through SfM, scored against the supplied poses
+    config = config_from_args(args, str(example / "video.mp4" if sfm else example), args.out,
+                              gt_poses=args.gt_poses or (str(example) if sfm else None))
+    config.evaluation = dataclasses.replace(config.evaluation, gt_mesh=args.gt_mesh or str(example / "gt_mesh.ply"))
     execute(config, args.force, args.quiet)
     return 0

@@ -1,7 +1,8 @@
 """`recon eval depth|mesh|poses`: the evaluation protocols of DESIGN.md, each with --json."""
 import math
 
-from apps.common import add_selection_args, open_selected_scan, print_json
+from apps import options
+from apps.common import open_selected_scan, print_json
 from apps.progress import progress_bar
 
 
@@ -17,7 +18,7 @@ def register(subparsers):
     d.add_argument("--pred", required=True, help="folder of predicted depth maps (<frame name>.npy or .png)")
     d.add_argument("--scan", required=True, help="scan with ground-truth depth")
     d.add_argument("--format", default="auto", help="scan format (default auto)")
-    add_selection_args(d)
+    options.add_selection(d)
     d.add_argument("--min-depth", type=float, default=1e-3, help="evaluation range start in metres (default 0.001)")
     d.add_argument("--max-depth", type=float, default=10.0, help="evaluation range end in metres (default 10)")
     d.add_argument("--size", default=None, metavar="WxH", help="evaluate at this resolution (GT resized, nearest)")
@@ -33,7 +34,7 @@ def register(subparsers):
     m.add_argument("gt", help="ground-truth mesh")
     m.add_argument("--scan", default=None, help="scan whose cameras define the observed region (visibility culling)")
     m.add_argument("--format", default="auto", help="scan format (default auto)")
-    add_selection_args(m)
+    options.add_selection(m)
     m.add_argument("--points", type=int, default=200_000, help="points sampled per mesh (default 200000)")
     m.add_argument("--threshold", type=float, default=0.05, help="distance threshold in metres (default 0.05)")
     m.add_argument("--occlusion-margin", type=float, default=0.05,
@@ -61,7 +62,7 @@ def _print(result: dict, as_json: bool) -> None:
 
 
 def run_depth(args):
-    from apps.commands.convert import parse_size
+    from apps.common import parse_size
     from depth.metrics import evaluate_depth_folder
 
     scan = open_selected_scan(args.scan, args)
@@ -91,7 +92,7 @@ def run_mesh(args):
 
 def run_poses(args):
     from poses.evaluate import pose_metrics
-    from poses.readers import open_scan
+    from recon.readers import open_scan
 
     pred = open_scan(args.pred)
     result = pose_metrics(pred, open_scan(args.gt), with_scale=not args.no_scale)

@@ -1,13 +1,14 @@
 """`recon info`: what a scan contains, or the list of readable formats."""
 import numpy as np
 
-from apps.common import add_scan_args, open_selected_scan, print_json
+from apps import options
+from apps.common import open_selected_scan, print_json
 
 
 def register(subparsers):
     p = subparsers.add_parser("info", help="describe a scan (frames, intrinsics, scale, depth)",
                               description="Read a scan in any supported format and summarise it.")
-    add_scan_args(p)
+    options.add_input(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
     sub = subparsers.add_parser("formats", help="list the scan formats `--format` accepts")
@@ -15,7 +16,7 @@ def register(subparsers):
 
 
 def run_formats(args):
-    from poses.readers import READERS
+    from recon.readers import READERS
 
     for r in READERS:
         print(f"{r.NAME:12s} {(r.__doc__ or '').strip().splitlines()[0]}")

@@ -1,6 +1,8 @@
 """`recon poses INPUT --out DIR`: camera poses for a video, an image folder or a recorded scan, by SfM."""
 from __future__ import annotations
 
+from apps import options
+
 
 def register(subparsers):
     p = subparsers.add_parser(
@@ -13,22 +15,16 @@ def register(subparsers):
     p.add_argument("input", help="video file (mp4/mov/avi), folder of images, or any readable scan")
     p.add_argument("--out", required=True, help="output folder")
     g = p.add_argument_group("frames")
-    g.add_argument("--stride", type=int, default=1, metavar="N", help="use every N-th input frame (default 1)")
-    g.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="videos: keep about F frames per second, the sharpest of each interval")
-    g.add_argument("--max-frames", type=int, default=None, metavar="N",
-                   help="use at most the first N frames after --stride/--fps (the filters may drop some)")
+    g.add_argument("--stride", type=int, default=1, metavar="N", help="use every N-th frame (default 1)")
+    g.add_argument("--max-frames", type=int, default=None, metavar="N", help="use at most N frames (default all)")
     g.add_argument("--min-motion", type=float, default=None, metavar="PX",
                    help="keep a frame only once the image moved PX pixels (median) since the last kept one")
     g.add_argument("--blur-ratio", type=float, default=0.35, metavar="R",
                    help="drop frames sharper than less than R x their neighbours' median (0 keeps all; default 0.35)")
     g.add_argument("--max-size", type=int, default=640, metavar="PX", help="long side of working images (default 640)")
-    s = p.add_argument_group("SfM")
-    s.add_argument("--mapper", choices=["global", "incremental"], default="incremental",
-                   help="pycolmap mapper (default incremental; the other is the fallback)")
+    options.add_sfm(p)
+    s = p.add_argument_group("SfM details")
     s.add_argument("--no-fallback", action="store_true", help="do not try the other mapper when the first fails")
-    s.add_argument("--camera-model", default="SIMPLE_RADIAL", choices=["SIMPLE_RADIAL", "OPENCV", "RADIAL"],
-                   help="shared camera model (default SIMPLE_RADIAL; OPENCV for wide-angle lenses)")
     s.add_argument("--features", type=int, default=2048, metavar="N", help="SIFT features per image (default 2048)")
     s.add_argument("--overlap", type=int, default=10, metavar="N", help="sequential matching window (default 10)")
     c = p.add_argument_group("scale (default: normalised so the median scene depth is --target-depth)")
@@ -47,7 +43,7 @@ def register(subparsers):
 def run(args) -> int:
     from apps.common import print_json
     from poses.ingest import IngestConfig
-    from poses.readers import open_scan
+    from recon.readers import open_scan
     from poses.scale import ScaleConfig
     from poses.sfm import PosesConfig, SfMConfig, estimate_poses
     from recon.errors import ReconError

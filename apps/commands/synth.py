@@ -1,18 +1,9 @@
 """`recon synth`: render a synthetic room to a canonical scan with exact GT depth and mesh."""
 import logging
-import re
 
-from recon.errors import ReconError
+from apps.common import parse_size
 
 log = logging.getLogger(__name__)
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'WxH' -> (W, H); anything else is a one-line ReconError."""
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m:
-        raise ReconError(f"--size: expected WIDTHxHEIGHT such as 320x256, got {text!r}")
-    return int(m.group(1)), int(m.group(2))
 
 
 def register(subparsers):

@@ -1,95 +1,172 @@
-"""`recon train`: train the EST depth network on canonical scans with GT depth."""
+"""`recon train`: train the EST depth network on scans with GT depth, or on streamed synthetic rooms."""
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import logging
+import os
+import time
 
-from apps.common import add_selection_args
+from apps import options
 
 log = logging.getLogger(__name__)
+
+# Held-out synthetic rooms for validation clips: training streams use seeds far below.
+VAL_SEED = 900_001
+VAL_CLIPS = 8
 
 
 def register(subparsers):
     p = subparsers.add_parser(
         "train", help="train the EST depth network on scans with ground-truth depth",
-        description="Train on 5-frame clips (3 targets) with the multi-stage L1 loss. Writes last.pt "
-                    "(resumable) and model.pt (weights) to --out. Run under torchrun for several GPUs.")
+        description="Train on 5-frame clips (3 targets) with the multi-stage loss. Writes last.pt (resumable), "
+                    "step_NNNNNN.pt at every validation, log.jsonl and model.pt to --out. Run under torchrun for "
+                    "several GPUs.")
     p.add_argument("scans", nargs="*", help="training scans (any supported format with GT depth)")
     p.add_argument("--synthetic", action="store_true",
-                   help="train on an endless stream of synthetic rooms (recon.synthetic) instead of scans; "
-                        "needs --max-steps")
-    p.add_argument("--steps-per-epoch", type=int, default=None, metavar="N",
-                   help="epoch length for the lr schedule (default: one pass over the scans; 1000 with --synthetic)")
+                   help="train on an endless stream of synthetic rooms (clean and sensor-degraded clips, several "
+                        "cameras and aspect ratios) instead of scans; needs --max-steps or a deadline")
     p.add_argument("--format", default="auto", help="input format of the scans (default: auto-detect)")
-    add_selection_args(p)
-    p.add_argument("--val", nargs="*", default=[], metavar="SCAN", help="validation scans")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder for checkpoints")
-    p.add_argument("--config", default="compact", help="network config: paper or compact (default compact)")
-    p.add_argument("--epochs", type=int, default=10)
-    p.add_argument("--max-steps", type=int, default=None, metavar="N")
-    p.add_argument("--batch-size", type=int, default=1)
-    p.add_argument("--lr", type=float, default=4e-5)
-    p.add_argument("--weight-decay", type=float, default=1e-5)
-    p.add_argument("--lr-halve-every", type=int, default=2, metavar="EPOCHS")
-    p.add_argument("--frame-gap", type=int, default=1, help="scan frames between clip frames (default 1)")
-    p.add_argument("--no-augment", action="store_true", help="disable photometric augmentation")
-    p.add_argument("--val-every", type=int, default=1000, metavar="STEPS")
-    p.add_argument("--checkpoint-every", type=int, default=1000, metavar="STEPS")
-    p.add_argument("--amp", nargs="?", const="bf16", choices=("bf16", "fp16"), default=None,
-                   help="mixed precision: bf16 (default when given), or fp16 with a gradient scaler (GPUs "
-                        "without bf16)")
-    p.add_argument("--compile", action="store_true", help="torch.compile the model")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--workers", type=int, default=0, help="data loader worker processes")
-    p.add_argument("--resume", default=None, metavar="CKPT", help="continue from a last.pt checkpoint")
-    p.add_argument("--backbone", default=None, metavar="PATH", help="ResNet weights for the ContextNet encoder")
-    p.add_argument("--fp16-export", action="store_true", help="store model.pt weights as float16")
-    p.add_argument("--seed", type=int, default=0)
+    options.add_selection(p)
+    p.add_argument("--val", nargs="*", default=[], metavar="SCAN",
+                   help="validation scans (default with --synthetic: 8 clips of held-out synthetic rooms)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder for checkpoints and logs")
+    p.add_argument("--config", default="lite", help="network config: lite, compact or paper (default lite)")
+    p.add_argument("--depth-range", nargs=2, type=float, default=(0.25, 10.0), metavar=("MIN", "MAX"),
+                   help="planes of every synthetic clip, in metres, recorded in the weights (default 0.25 10)")
+    stop = p.add_argument_group("when to stop (the first that comes)")
+    stop.add_argument("--max-steps", type=int, default=None, metavar="N", help="total optimiser steps")
+    stop.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC wall-clock time (next occurrence)")
+    stop.add_argument("--minutes", type=float, default=None, help="wall-clock minutes from now")
+    stop.add_argument("--epochs", type=int, default=10, help="passes over the scans (default 10)")
+    opt = p.add_argument_group("optimisation")
+    opt.add_argument("--schedule", choices=("step", "cosine"), default="cosine",
+                     help="lr: 'step' halves every --lr-halve-every epochs (paper); 'cosine' warms up, then decays "
+                          "to --min-lr-ratio over the horizon (default cosine)")
+    opt.add_argument("--lr", type=float, default=5e-4, help="peak learning rate (default 5e-4; paper 4e-5)")
+    opt.add_argument("--min-lr-ratio", type=float, default=0.05, help="cosine: final lr / lr (default 0.05)")
+    opt.add_argument("--warmup-steps", type=int, default=50, help="cosine: warm-up steps (default 50)")
+    opt.add_argument("--lr-halve-every", type=int, default=2, metavar="EPOCHS", help="step schedule (default 2)")
+    opt.add_argument("--encoder-lr-scale", type=float, default=0.1,
+                     help="lr factor of the pretrained encoder's trainable blocks (default 0.1)")
+    opt.add_argument("--weight-decay", type=float, default=1e-5)
+    opt.add_argument("--grad-clip", type=float, default=5.0, help="gradient-norm clip (default 5; 0 = off)")
+    opt.add_argument("--loss", choices=("l1", "log_l1"), default="log_l1",
+                     help="per-pixel error: l1 in metres (paper) or l1 of log depth (default)")
+    opt.add_argument("--batch-size", type=int, default=1)
+    data = p.add_argument_group("data")
+    data.add_argument("--low-res", default="160x128", metavar="WxH",
+                      help="clip size before --full-res-after (default 160x128; 'none' = always the config's)")
+    data.add_argument("--full-res-after", type=float, default=0.7,
+                      help="share of the horizon trained at --low-res (default 0.7)")
+    data.add_argument("--frame-gap", type=int, default=1, help="scan frames between clip frames (default 1)")
+    data.add_argument("--no-augment", action="store_true", help="disable photometric augmentation")
+    data.add_argument("--seed", type=int, default=0, help="seed of the model init and the synthetic stream")
+    files = p.add_argument_group("checkpoints")
+    files.add_argument("--val-every", type=int, default=100, metavar="STEPS", help="(default 100)")
+    files.add_argument("--checkpoint-every", type=int, default=100, metavar="STEPS", help="last.pt (default 100)")
+    files.add_argument("--log-every", type=int, default=10, metavar="STEPS", help="(default 10)")
+    files.add_argument("--resume", default=None, metavar="CKPT", help="continue exactly from a last.pt")
+    files.add_argument("--init", default=None, metavar="WEIGHTS",
+                       help="start from these weights (a shipped name such as lite, or a file) with a fresh "
+                            "optimiser and warm-up")
+    files.add_argument("--backbone", default=None, metavar="PATH",
+                       help="ResNet weights for the ContextNet encoder (resnet configs)")
+    files.add_argument("--fp16-export", action="store_true", help="store model.pt weights as float16")
+    run_ = p.add_argument_group("hardware")
+    run_.add_argument("--amp", nargs="?", const="bf16", choices=("bf16", "fp16"), default=None,
+                      help="mixed precision: bf16 (default when given), or fp16 with a gradient scaler")
+    run_.add_argument("--compile", action="store_true", help="torch.compile the model")
+    run_.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    run_.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    run_.add_argument("--workers", type=int, default=0, help="data loader worker processes")
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    import os
-
-    from depth.config import get_config
-    from depth.data import ClipDataset, ClipOptions, StreamingClips
-    from depth.train import TrainOptions, train
-    from poses.readers import open_scan
+def deadline_time(args: argparse.Namespace) -> float | None:
+    """--deadline HH:MM (UTC, next occurrence) and/or --minutes -> the earlier, as time.time() seconds."""
     from recon.errors import ReconError
 
-    cfg = get_config(args.config)
+    times = []
+    if args.minutes is not None:
+        times.append(time.time() + 60 * args.minutes)
+    if args.deadline:
+        try:
+            hh, mm = (int(x) for x in args.deadline.split(":"))
+            now = dt.datetime.now(dt.timezone.utc)
+            when = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+        except ValueError:
+            raise ReconError(f"--deadline: expected HH:MM (UTC), got {args.deadline!r}") from None
+        times.append((when + dt.timedelta(days=1) if when <= now else when).timestamp())
+    return min(times) if times else None
+
+
+def _size(text: str) -> tuple[int, int] | None:
+    from apps.common import parse_size
+
+    return None if text.lower() == "none" else parse_size(text, "--low-res", multiple=32)
+
+
+def _data(args: argparse.Namespace, cfg):
+    from depth.data import ClipDataset, ClipOptions, StreamingClips
+    from recon.errors import ReconError
+
     clip = ClipOptions(frame_gap=args.frame_gap, width=cfg.image_width, height=cfg.image_height,
                        augment=not args.no_augment)
+    plain = ClipOptions(**{**clip.__dict__, "augment": False})
 
     def scans(paths):
+        from recon.readers import open_scan
+
         return [open_scan(p, args.format).select(args.start, args.stride, args.max_frames) for p in paths]
 
     if args.synthetic == bool(args.scans):
         raise ReconError("recon train: give training scans or --synthetic (one of the two)")
-    steps_per_epoch = args.steps_per_epoch
-    if args.synthetic:
-        from recon.synthetic import iter_training_scans
+    if not args.synthetic:
+        val = ClipDataset(scans(args.val), plain) if args.val else None
+        return ClipDataset(scans(args.scans), clip, seed=args.seed), val
+    import itertools
 
-        if args.max_steps is None:
-            raise ReconError("recon train --synthetic: the stream is endless, pass --max-steps")
-        steps_per_epoch = steps_per_epoch or 1000
-        rank = int(os.environ.get("RANK", "0"))
-        stream = iter_training_scans(seed=args.seed + 1000 * rank, clip_frames=clip.clip_length,
-                                     width=cfg.image_width, height=cfg.image_height)
-        train_data = StreamingClips(stream, clip, seed=args.seed + rank)
+    from recon.synthetic import iter_training_mix
+
+    rank = int(os.environ.get("RANK", "0"))
+    stream = iter_training_mix(args.seed + 1000 * rank, tuple(args.depth_range))
+    if args.val:
+        val = ClipDataset(scans(args.val), plain)
     else:
-        train_data = ClipDataset(scans(args.scans), clip, seed=args.seed)
-    val_data = ClipDataset(scans(args.val), ClipOptions(**{**clip.__dict__, "augment": False})) if args.val else None
-    opts = TrainOptions(config=args.config, epochs=args.epochs, max_steps=args.max_steps,
-                        steps_per_epoch=steps_per_epoch, batch_size=args.batch_size,
-                        lr=args.lr, weight_decay=args.weight_decay, lr_halve_every=args.lr_halve_every,
-                        val_every=args.val_every, checkpoint_every=args.checkpoint_every, amp=args.amp,
-                        compile=args.compile, device=args.device, num_workers=args.workers, seed=args.seed,
-                        backbone=args.backbone, fp16_export=args.fp16_export)
+        held_out = iter_training_mix(VAL_SEED, tuple(args.depth_range), clips_per_scene=2)
+        val = ClipDataset(list(itertools.islice(held_out, VAL_CLIPS)), plain)
+    return StreamingClips(stream, clip, seed=args.seed + rank, describe={
+        "train": "recon.synthetic.iter_training_mix", "train_seed": args.seed, "val_seed": VAL_SEED,
+        "depth_range": list(args.depth_range)}), val
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from depth.config import get_config
+    from depth.train import TrainOptions, train
+    from recon.errors import ReconError
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    cfg = get_config(args.config)
+    deadline = deadline_time(args)
+    if args.synthetic and args.max_steps is None and deadline is None:
+        raise ReconError("recon train --synthetic: the stream is endless, pass --max-steps, --deadline or --minutes")
+    train_data, val_data = _data(args, cfg)
+    opts = TrainOptions(
+        config=args.config, epochs=args.epochs, max_steps=args.max_steps, deadline=deadline,
+        batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, schedule=args.schedule,
+        lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
+        encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
+        low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
+        checkpoint_every=args.checkpoint_every, log_every=args.log_every, amp=args.amp, compile=args.compile,
+        device=args.device, num_workers=args.workers, seed=args.seed, init=args.init, backbone=args.backbone,
+        fp16_export=args.fp16_export)
     log.info("training %s on %s (%d validation clips)", cfg.name,
              "synthetic rooms" if args.synthetic else f"{len(train_data)} clips", len(val_data) if val_data else 0)
-    result = train(train_data, args.out, opts, val_data=val_data, resume=args.resume,
-                   progress=lambda step, loss: log.debug("step %d loss %.4f", step, loss))
+    result = train(train_data, args.out, opts, val_data=val_data, resume=args.resume)
     last = f", last loss {result.losses[-1]:.4f}" if result.losses else ""
     print(f"trained {result.steps} steps ({result.epochs} epochs){last}; weights {result.model_path}")
     return 0

@@ -87,18 +87,18 @@ class ResNetEncoder(nn.Module):
         return feats
 
 
-class ContextNet(nn.Module):
-    """Reference image (B, 3, H, W) -> context map (B, D, H/4, W/4) and the 1/2-res encoder feature.
+class ContextDecoder(nn.Module):
+    """Encoder features at 1/2..1/32 -> context map (B, D, H/4, W/4) and the 1/2-res feature.
 
     The decoder climbs from 1/32 to 1/4 with skip connections (conv, 2x upsample, concat
     skip, conv), ending in D channels: one per depth plane, the 1 x D x H x W context volume.
+    `encoder_channels` lists the channels at [1/2, 1/4, 1/8, 1/16, 1/32].
     """
 
-    def __init__(self, cfg: ESTConfig):
+    def __init__(self, encoder_channels: list[int], decoder_channels: tuple[int, ...], num_planes: int):
         super().__init__()
-        self.encoder = ResNetEncoder(cfg)
-        enc = self.encoder.channels  # [1/2, 1/4, 1/8, 1/16, 1/32]
-        dec = list(cfg.context_decoder_channels) + [cfg.num_planes]
+        enc = encoder_channels
+        dec = list(decoder_channels) + [num_planes]
         self.up_convs = nn.ModuleList()
         self.skip_convs = nn.ModuleList()
         cin = enc[4]
@@ -107,13 +107,26 @@ class ContextNet(nn.Module):
             self.skip_convs.append(conv2d_bn(cout + enc[level], cout))
             cin = cout
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        feats = self.encoder(image)
+    def decode(self, feats: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         x = feats[4]
         for up, skip, level in zip(self.up_convs, self.skip_convs, (3, 2, 1)):
-            x = F.interpolate(up(x), scale_factor=2, mode="nearest")
+            x = F.interpolate(up(x), size=feats[level].shape[-2:], mode="nearest")
             x = skip(torch.cat([x, feats[level]], 1))
         return x, feats[0]
+
+    forward = decode
+
+
+class ContextNet(ContextDecoder):
+    """The paper's ContextNet: a ResNet encoder on the reference image (B, 3, H, W) + `ContextDecoder`."""
+
+    def __init__(self, cfg: ESTConfig):
+        encoder = ResNetEncoder(cfg)
+        super().__init__(encoder.channels, cfg.context_decoder_channels, cfg.num_planes)
+        self.encoder = encoder
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.decode(self.encoder(image))
 
     def load_backbone(self, path: str | os.PathLike) -> list[str]:
         """Load ResNet encoder weights (a torchvision-layout state dict file); returns the missing keys.

@@ -61,3 +61,22 @@ class SPPFeatures(nn.Module):
             pooled = branch(F.avg_pool2d(x, k, k))
             pyramid.append(F.interpolate(pooled, (h, w), mode="bilinear", align_corners=False))
         return self.fuse(torch.cat(pyramid, 1))
+
+
+class PyramidFeatures(nn.Module):
+    """Encoder features at 1/4, 1/8, 1/16 -> matching features (B, F, H/4, W/4), FPN style.
+
+    Each level is projected to F channels (1x1), the coarser sum is upsampled onto the finer one,
+    and a 3x3 conv smooths the 1/4-res result: pretrained semantics, 1/4-res localisation.
+    """
+
+    def __init__(self, encoder_channels: list[int], channels: int):
+        super().__init__()
+        self.lateral = nn.ModuleList(nn.Conv2d(c, channels, 1) for c in encoder_channels)
+        self.output = nn.Sequential(conv2d_bn(channels, channels), nn.Conv2d(channels, channels, 1, bias=False))
+
+    def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
+        x = self.lateral[-1](feats[-1])
+        for lateral, f in zip(self.lateral[-2::-1], feats[-2::-1]):
+            x = lateral(f) + F.interpolate(x, size=f.shape[-2:], mode="bilinear", align_corners=False)
+        return self.output(x)

@@ -13,8 +13,9 @@ from torch import nn
 
 from ..config import ESTConfig
 from ..geometry import depth_planes, scale_intrinsics
-from .context import ContextNet
-from .features import SPPFeatures
+from .context import ContextDecoder, ContextNet
+from .efficientnet import EfficientNetLite, load_pretrained
+from .features import PyramidFeatures, SPPFeatures
 from .refine import RefineNet
 from .transformer import ESTransformer, MemoryEntry
 from .volumes import DepthHead, HybridVolume, MatchNet, soft_argmax_depth
@@ -50,18 +51,35 @@ class TargetOutput:
 
 
 class ESTNet(nn.Module):
-    def __init__(self, cfg: ESTConfig):
+    """The whole network. With `cfg.encoder == "efficientnet-lite0"` one ImageNet-pretrained
+    encoder (`self.encoder`, loaded from its package unless `pretrained=False`) feeds both the
+    matching features and the ContextNet decoder; its stem, first `encoder_frozen_blocks` blocks
+    and every BatchNorm stay frozen (eval mode, no gradient)."""
+
+    def __init__(self, cfg: ESTConfig, pretrained: bool = True):
         super().__init__()
         self.cfg = cfg
-        self.features = SPPFeatures(cfg)
+        if cfg.encoder == "resnet":
+            self.encoder = None
+            self.features = SPPFeatures(cfg)
+            self.context = ContextNet(cfg)
+            half_channels = self.context.encoder.channels[0]
+        else:
+            self.encoder = EfficientNetLite(classifier=False)
+            if pretrained:
+                load_pretrained(self.encoder)
+            self._freeze_encoder()
+            channels = self.encoder.channels
+            self.features = PyramidFeatures(channels[1:4], cfg.feature_channels)
+            self.context = ContextDecoder(channels, cfg.context_decoder_channels, cfg.num_planes)
+            half_channels = channels[0]
         self.matchnet = MatchNet(cfg)
-        self.context = ContextNet(cfg)
         self.hybrid = HybridVolume(cfg)
         half_c = cfg.volume_channels // 2
         self.head0 = DepthHead(half_c)
         self.transformer = ESTransformer(half_c, cfg.fusion, cfg.plane_spacing)
         self.head1 = DepthHead(half_c)
-        self.refine = RefineNet(cfg, self.context.encoder.channels[0])
+        self.refine = RefineNet(cfg, half_channels)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -69,9 +87,44 @@ class ESTNet(nn.Module):
         """RGB in [0, 1], (..., 3, H, W) -> ImageNet-normalised."""
         return (images - self.mean) / self.std
 
+    def _freeze_encoder(self) -> None:
+        frozen = {"_conv_stem", "_bn0"} | {f"_blocks.{i}" for i in range(self.cfg.encoder_frozen_blocks)}
+        for name, module in self.encoder.named_modules():
+            if name in frozen or isinstance(module, nn.BatchNorm2d):
+                module.requires_grad_(False)
+
+    def train(self, mode: bool = True) -> "ESTNet":
+        """As nn.Module.train, but the pretrained encoder's BatchNorm statistics never move."""
+        super().train(mode)
+        if self.encoder is not None:
+            for module in self.encoder.modules():
+                if isinstance(module, nn.BatchNorm2d):
+                    module.eval()
+        return self
+
+    def pretrained_keys(self) -> set[str]:
+        """State-dict keys that come from the encoder package, not from our checkpoints."""
+        if self.encoder is None:
+            return set()
+        trained = {n for n, p in self.encoder.named_parameters() if p.requires_grad}
+        return {f"encoder.{k}" for k in self.encoder.state_dict() if k not in trained}
+
+    def stored_state_dict(self) -> dict[str, torch.Tensor]:
+        """What a checkpoint holds: every tensor but the frozen pretrained ones."""
+        skip = self.pretrained_keys()
+        return {k: v for k, v in self.state_dict().items() if k not in skip}
+
     def frame_features(self, images: torch.Tensor) -> torch.Tensor:
         """Normalised images (N, 3, H, W) -> matching features (N, F, H/4, W/4)."""
-        return self.features(images)
+        if self.encoder is None:
+            return self.features(images)
+        return self.features(self.encoder.pyramid(images, 4)[1:])
+
+    def context_map(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalised reference image (B, 3, H, W) -> context map (B, D, h, w) and the 1/2-res feature."""
+        if self.encoder is None:
+            return self.context(image)
+        return self.context(self.encoder.pyramid(image))
 
     def prepare(self, image: torch.Tensor, ref_features: torch.Tensor, src_features: torch.Tensor,
                 K: torch.Tensor, camera_to_world: torch.Tensor, src_camera_to_world: torch.Tensor,
@@ -85,7 +138,7 @@ class ESTNet(nn.Module):
         K4 = scale_intrinsics(K, w / image.shape[-1], h / image.shape[-2])
         planes = depth_planes(depth_range[:, 0], depth_range[:, 1], self.cfg.num_planes, self.cfg.plane_spacing)
         matching = self.matchnet(ref_features, src_features, K4, camera_to_world, src_camera_to_world, planes)
-        context, half = self.context(image)
+        context, half = self.context_map(image)
         key, value = self.hybrid(matching, context)
         depth0, _ = soft_argmax_depth(self.head0(value), planes)
         return TargetState(image, camera_to_world, depth_range, planes, K4, context, half, key, value, depth0)

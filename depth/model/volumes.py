@@ -18,6 +18,9 @@ class MatchNet(nn.Module):
     reference features plus a projection of the warped source features, and warping
     (bilinear sampling) commutes with a per-pixel linear map, so both halves are applied
     in 2D before the sweep: the same function, without materialising the 2F-channel volume.
+    With `match_metadata`, two more channels per source join before the projection: the mean
+    dot product of reference and warped source features (an explicit match score) and the mask
+    of planes the source sees.
     """
 
     def __init__(self, cfg: ESTConfig):
@@ -25,6 +28,7 @@ class MatchNet(nn.Module):
         c, f = cfg.volume_channels, cfg.feature_channels
         self.project_ref = nn.Conv2d(f, c, 1, bias=False)
         self.project_src = nn.Conv2d(f, c, 1, bias=False)
+        self.project_meta = nn.Conv3d(2, c, 1, bias=False) if cfg.match_metadata else None
         self.project_norm = nn.BatchNorm3d(c)
         self.residual = nn.Sequential(conv3d_bn(c, c), conv3d_bn(c, c, activation=None))
         self.regularise = nn.Sequential(*[conv3d_bn(c, c) for _ in range(cfg.match_regularisation_layers)])
@@ -36,11 +40,16 @@ class MatchNet(nn.Module):
         poses (B, 4, 4) and (B, S, 4, 4); planes (B, D) -> (B, C, D, h, w)."""
         ref_part = self.project_ref(ref_features).unsqueeze(2)
         src_parts = self.project_src(src_features.flatten(0, 1)).unflatten(0, src_features.shape[:2])
-        total = None
+        c, total = ref_part.shape[1], None
         for s in range(src_features.shape[1]):
-            warped, valid = plane_sweep_warp(src_parts[:, s], K, K, ref_camera_to_world,
-                                             src_camera_to_world[:, s], planes)
-            x = self.project_norm(ref_part + warped * valid.unsqueeze(1).to(warped.dtype))
+            src = src_parts[:, s] if self.project_meta is None else torch.cat([src_parts[:, s], src_features[:, s]], 1)
+            warped, valid = plane_sweep_warp(src, K, K, ref_camera_to_world, src_camera_to_world[:, s], planes)
+            mask = valid.unsqueeze(1).to(warped.dtype)
+            x = ref_part + warped[:, :c] * mask
+            if self.project_meta is not None:
+                score = (ref_features.unsqueeze(2) * warped[:, c:]).mean(1, keepdim=True)
+                x = x + self.project_meta(torch.cat([score * mask, mask], 1))
+            x = self.project_norm(x)
             x = x + self.residual(x)
             total = x if total is None else total + x
         return self.regularise(total / src_features.shape[1])

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from recon.errors import ReconError
-from recon.geometry import invert_pose
+from recon.geometry import backproject_pixels, invert_pose, project, transform_points
 from recon.scan import Intrinsics
 
 from .trajectory import smooth_noise
@@ -64,15 +64,12 @@ def image_motion_px(prev_to_world: np.ndarray, camera_to_world: np.ndarray, dept
     if not ok.any():
         return np.zeros(2)
     u, v, z = u[ok], v[ok], z[ok]
-    pts = np.stack([(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], 1)
-    rel = invert_pose(prev_to_world) @ camera_to_world
-    q = pts @ rel[:3, :3].T + rel[:3, 3]
+    pts = backproject_pixels(u, v, z, intrinsics.K)
+    q = transform_points(invert_pose(prev_to_world) @ camera_to_world, pts)
     front = q[:, 2] > 1e-3
     if not front.any():
         return np.zeros(2)
-    q = q[front]
-    uv = np.stack([q[:, 0] / q[:, 2] * intrinsics.fx + intrinsics.cx,
-                   q[:, 1] / q[:, 2] * intrinsics.fy + intrinsics.cy], 1)
+    uv, _ = project(q[front], intrinsics.K)
     return np.median(np.stack([u[front], v[front]], 1) - uv, axis=0)
 
 

@@ -222,12 +222,15 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
                         keyframe_distance: float = 0.1, clips_per_scene: int = 8,
                         effects: SensorEffects = SensorEffects(), scene: SceneConfig = SceneConfig(),
                         trajectory: TrajectoryConfig = TrajectoryConfig(), fps: float = 30.0,
-                        hfov_range_deg: tuple[float, float] = (55.0, 75.0), shadows: bool = True) -> Iterator[Scan]:
+                        hfov_range_deg: tuple[float, float] = (55.0, 75.0), shadows: bool = True,
+                        sizes: tuple[tuple[int, int], ...] | None = None) -> Iterator[Scan]:
     """Endless short in-memory clips for training: a new room every `clips_per_scene` clips.
 
     Each clip is `clip_frames` consecutive keyframes of one handheld walk, a keyframe being taken
     whenever the camera moved `keyframe_distance` (the DESIGN's pose distance) since the last one,
-    so neighbours have a baseline a multi-view network can triangulate from.
+    so neighbours have a baseline a multi-view network can triangulate from. `sizes`: image sizes
+    (width, height) each room draws one of (aspect ratios, portrait and landscape); default
+    width x height.
     """
     if clip_frames < 1 or clips_per_scene < 1 or keyframe_distance < 0:
         raise ReconError("training clips need clip_frames >= 1, clips_per_scene >= 1, keyframe_distance >= 0")
@@ -237,6 +240,9 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
     for scene_index in itertools.count():
         scene_seed = int(np.random.SeedSequence([seed, scene_index]).generate_state(1)[0] & 0x7FFFFFFF)
         config = dataclasses.replace(base, seed=scene_seed)
+        if sizes:
+            w, h = sizes[int(np.random.default_rng([scene_seed, 6]).integers(len(sizes)))]
+            config = dataclasses.replace(config, width=int(w), height=int(h)).validate()
         room = generate_scene(scene_seed, library, scene)
         renderer = Renderer(room, library, shadows=shadows)
         intrinsics = camera_intrinsics(config, np.random.default_rng([scene_seed, 3]))
@@ -244,7 +250,7 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
         walk_frames = int(clip_frames * clips_per_scene * 10 * max(1.0, keyframe_distance / 0.1))
         poses = handheld_trajectory(room.free_space, walk_frames, fps, np.random.default_rng([scene_seed, 4]),
                                     trajectory, scene.camera_clearance_m)
-        keyframes = select_keyframes(poses, KeyframeConfig(min_pose_distance=keyframe_distance))
+        keyframes = select_keyframes(poses, KeyframeConfig(keyframe_distance=keyframe_distance))
         effects_rng = np.random.default_rng([scene_seed, 5])
         for clip in range(min(clips_per_scene, len(keyframes) // clip_frames)):
             indices = keyframes[clip * clip_frames:(clip + 1) * clip_frames]
@@ -255,3 +261,25 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
             extra = {"seed": scene_seed, "generator": "recon.synthetic", "clip": clip,
                      "training_seed": int(seed), "scene": room.summary}
             yield _scan(frames, intrinsics, depths, extra)
+
+
+# Image sizes of about 320x256 pixels in the aspect ratios phones and headsets record:
+# 4:3, 16:9, 5:4 landscape and 3:4, 9:16 portrait.
+TRAINING_SIZES = ((320, 240), (352, 198), (320, 256), (240, 320), (198, 352))
+
+
+def iter_training_mix(seed: int, depth_range: tuple[float, float], keyframe_distance: float = 0.2,
+                      hfov_range_deg: tuple[float, float] = (45.0, 90.0),
+                      sizes: tuple[tuple[int, int], ...] = TRAINING_SIZES, clips_per_scene: int = 8) -> Iterator[Scan]:
+    """The depth network's training stream: clean clips alternating with clips that carry realistic
+    sensor effects (noise, motion blur, exposure and white-balance drift, JPEG), cameras of 45-90
+    degrees in several aspect ratios, and one fixed `depth_range` (so planes mean the same metres in
+    every clip and at inference). Keyframes 0.2 apart: about the baseline inference picks for sources.
+    """
+    streams = [iter_training_scans(seed=seed + offset, keyframe_distance=keyframe_distance, effects=effects,
+                                   hfov_range_deg=hfov_range_deg, sizes=sizes, clips_per_scene=clips_per_scene)
+               for offset, effects in ((0, SensorEffects()), (50, SensorEffects.realistic()))]
+    for pair in zip(*streams):
+        for scan in pair:
+            scan.metadata = dataclasses.replace(scan.metadata, depth_range=tuple(depth_range))
+            yield scan

@@ -17,6 +17,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from recon.geometry import pixel_rays
 from recon.scan import Intrinsics
 
 from .scene import Scene
@@ -65,9 +66,8 @@ class Renderer:
     def _camera_rays(self, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per pixel, the camera-frame ray (x, y, 1) as x (N,), y (N,) and the ray length (N,), float32."""
         if intrinsics not in self._rays_cam:
-            u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
-            x = ((u - intrinsics.cx) / intrinsics.fx).ravel()
-            y = ((v - intrinsics.cy) / intrinsics.fy).ravel()
+            rays = pixel_rays(intrinsics.K, intrinsics.width, intrinsics.height).reshape(-1, 3)
+            x, y = rays[:, 0], rays[:, 1]
             self._rays_cam[intrinsics] = (x.astype(np.float32), y.astype(np.float32),
                                           np.sqrt(x * x + y * y + 1).astype(np.float32))
         return self._rays_cam[intrinsics]

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from recon import io as rio
+from recon.io import working_size
 from recon.errors import ScanFormatError
 from recon.geometry import quaternion_to_rotation
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
@@ -70,7 +71,6 @@ def _cache_dir(video: Path) -> Path:
 
 def decode_video(video: Path) -> tuple[Path, int, tuple[int, int], tuple[int, int]]:
     """Decode every frame once into the cache: (folder, frame count, video size, decoded size)."""
-    from poses.ingest import working_size
 
     cap = cv2.VideoCapture(str(video))
     if not cap.isOpened():

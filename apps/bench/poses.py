@@ -32,7 +32,7 @@ def add_arguments(parser):
 def run(args) -> int:
     from poses.evaluate import pose_metrics
     from poses.ingest import IngestConfig, ingest
-    from poses.readers import detect_format, open_scan
+    from recon.readers import detect_format, open_scan
     from poses.scale import resolve_scale
     from poses.sfm import SfMConfig, SfMResult, extract_and_match, map_images, scan_from_sfm, sparse_depths
     from recon.errors import ReconError

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def count_gmacs(cfg, memory_size: int) -> float:
     """MACs (in G) of one ESTM step: features of 3 frames, one target, `memory_size` memories."""
-    from .model import ESTNet
+    from depth.model import ESTNet
 
     with torch.device("meta"):
         net = ESTNet(cfg).eval()
@@ -61,11 +61,12 @@ def _peak_mb(device: torch.device) -> float:
 
 def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None = None, device: str = "auto",
             baseline: bool = True, precision: str = "fp32", compile: bool = False) -> dict:
-    from .config import get_config
-    from .inference import DepthEstimator, DepthOptions, resolve_device, run_planesweep
-    from .model import ESTNet
-    from .planesweep import PlaneSweepOptions
-    from .synthetic_planes import plane_scan
+    from depth.config import get_config
+    from depth.device import resolve_device
+    from depth.inference import DepthEstimator, DepthOptions, run_planesweep
+    from depth.model import ESTNet
+    from depth.planesweep import PlaneSweepOptions
+    from recon.plane_scene import plane_scan
 
     if frames < 1:
         raise ReconError(f"--frames must be at least 1, got {frames}")

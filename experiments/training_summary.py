@@ -1,6 +1,6 @@
 """Summarise a training run's log.jsonl (scripts/train_default_weights.py) as Markdown for the model card.
 
-    python scripts/training_summary.py runs/compact_cpu [--every 100]
+    python experiments/training_summary.py runs/compact_cpu [--every 100]
 """
 from __future__ import annotations
 

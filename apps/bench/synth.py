@@ -40,7 +40,7 @@ def _full_render(renderer, poses, intrinsics) -> float:
 
 
 def run(args) -> int:
-    from apps.commands.synth import parse_size
+    from apps.common import parse_size
     from recon.synthetic import (Renderer, SensorEffects, SynthConfig, camera_intrinsics, generate_scene,
                                  handheld_trajectory, iter_training_scans, render_scan, texture_library)
 

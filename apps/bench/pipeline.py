@@ -20,16 +20,17 @@ def add_arguments(parser):
 
 def run(args) -> int:
     from apps.commands.demo import ensure_example
-    from apps.commands.run import pick_mode
-    from recon.pipeline import Pipeline, RunConfig
+    from apps.options import pick_mode
+    from apps.pipeline import EvalConfig, InputConfig, Pipeline, RunConfig
+    from depth.options import DepthOptions
 
     mode = pick_mode(args.mode, args.weights)
-    cases = [("demo", RunConfig(input=str(ensure_example()), out="", mode=mode, weights=args.weights,
-                                gt_mesh=str(ensure_example() / "gt_mesh.ply")))]
+    depth = DepthOptions(mode=mode, weights=args.weights)
+    cases = [("demo", RunConfig(InputConfig(str(ensure_example())), "", depth=depth,
+                                evaluation=EvalConfig(gt_mesh=str(ensure_example() / "gt_mesh.ply"))))]
     if Path(args.kitchen).is_dir():
         cases.append((f"7scenes x{args.kitchen_frames}",
-                      RunConfig(input=args.kitchen, out="", mode=mode, weights=args.weights,
-                                max_frames=args.kitchen_frames)))
+                      RunConfig(InputConfig(args.kitchen, max_frames=args.kitchen_frames), "", depth=depth)))
     else:
         print(f"note: {args.kitchen} not found, the kitchen case is skipped")
     results = {}

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .io import write_bytes_atomic
+from recon.io import write_bytes_atomic
 
 PLOT_W, PLOT_H = 560, 220
 
@@ -115,7 +115,7 @@ def _fmt(v) -> str:
 
 def depth_panels(pipeline, count: int) -> list[tuple[str, str]]:
     """(frame name, data URI) of image | predicted depth | GT depth | abs error, for sampled keyframes."""
-    from .io import load_depth_map
+    from recon.io import load_depth_map
 
     scan = pipeline.keyframe_scan()
     picks = np.unique(np.linspace(0, len(scan) - 1, min(count, len(scan))).round().astype(int))
@@ -148,8 +148,8 @@ def write_report(pipeline, report: dict, path: Path) -> None:
     up = -poses[:, :3, 1].mean(0)  # cameras are held upright: their image-down axis points at the floor
     keys = set(pipeline.keyframe_names())
     key_mask = np.array([f.name in keys for f in scan.frames])
-    body = [f"<h1>Reconstruction report</h1><p>Input <code>{html.escape(str(pipeline.config.input))}</code>, "
-            f"{len(scan)} frames, {key_mask.sum()} keyframes, depth mode <b>{html.escape(pipeline.config.mode)}</b>. "
+    body = [f"<h1>Reconstruction report</h1><p>Input <code>{html.escape(pipeline.config.input.path)}</code>, "
+            f"{len(scan)} frames, {key_mask.sum()} keyframes, depth mode <b>{html.escape(pipeline.config.depth.mode)}</b>. "
             f"Scale: <b>{'metric (metres)' if report.get('metric_scale') else 'unknown (arbitrary units)'}</b>.</p>"]
     body.append("<h2>Summary</h2><div class='row'>")
     for name in ("depth", "temporal", "mesh", "poses"):
@@ -165,7 +165,7 @@ def write_report(pipeline, report: dict, path: Path) -> None:
         body.append(svg_line_plot({"flicker": [r["flicker"] for r in per_frame]},
                                   "Flicker with the previous keyframe", "rel. disagreement"))
     body.append("<h2>Depth</h2><p>image | predicted depth | ground truth | absolute error (when GT exists)</p>")
-    for name, uri in depth_panels(pipeline, pipeline.config.report_frames):
+    for name, uri in depth_panels(pipeline, pipeline.config.report.frames):
         body.append(f"<figure><img src='{uri}' alt='depth of frame {html.escape(name)}'>"
                     f"<figcaption>frame {html.escape(name)}</figcaption></figure>")
     mesh_path = pipeline.out / "mesh.ply"

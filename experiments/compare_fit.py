@@ -1,6 +1,6 @@
 """Stretch or crop frames to the network size? ESTM (memory 2) both ways on ICL-NUIM (640x480, held out).
 
-    python scripts/compare_fit.py [--weights compact] [--out runs/fit_compare]
+    python experiments/compare_fit.py [--weights compact] [--out runs/fit_compare]
 
 Prints Abs Rel, delta<1.25, flicker, coverage and Abs Rel on covered pixels for each fit
 (evaluation range 0-10 m, every 5th frame, sweep range from the weights). Never 7-Scenes.
@@ -26,10 +26,11 @@ def main(argv=None) -> int:
 
     import torch
 
-    from depth.inference import FITS, DepthOptions, estimate_depth
+    from depth.inference import estimate_depth
+    from depth.options import FITS, DepthOptions
     from depth.metrics import evaluate_depth_folder
-    from poses.readers import open_scan
-    from recon.results import covered_abs_rel
+    from recon.readers import open_scan
+    from experiments.results_7scenes import covered_abs_rel
 
     if not ICL.is_dir():
         print(f"no ICL-NUIM sequence at {ICL}", file=sys.stderr)
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
     results = {}
     for fit in FITS:
         out = Path(args.out) / fit
-        estimate_depth(scan, out, DepthOptions(mode="estm", fit=fit), weights=args.weights, resume=True)
+        estimate_depth(scan, out, DepthOptions(mode="estm", fit=fit, weights=args.weights), resume=True)
         m = evaluate_depth_folder(out, scan, 1e-3, 10.0)
         results[fit] = {k: m[k] for k in ("abs_rel", "a1", "flicker", "coverage")}
         results[fit]["abs_rel_covered"] = covered_abs_rel(out, scan, 1e-3, 10.0)

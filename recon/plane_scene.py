@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recon.geometry import pixel_rays
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
 
@@ -44,9 +45,7 @@ def render(intr: Intrinsics, camera_to_world: np.ndarray, rects=ROOM, seed: int 
            ) -> tuple[np.ndarray, np.ndarray]:
     """uint8 RGB (H, W, 3) and float32 depth (H, W) (0 where no rectangle is hit)."""
     h, w = intr.height, intr.width
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    rays_cam = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)], -1)
-    rays = rays_cam @ camera_to_world[:3, :3].T
+    rays = pixel_rays(intr.K, w, h) @ camera_to_world[:3, :3].T
     origin = camera_to_world[:3, 3]
     best = np.full((h, w), np.inf)
     for r in rects:
@@ -85,5 +84,5 @@ def plane_scan(num_frames: int = 5, width: int = 160, height: int = 128, step: f
         rgb, depth = render(intr, pose, rects, seed)
         frames.append(Frame(name=f"{i:06d}", camera_to_world=pose, image_array=rgb, depth_array=depth,
                             source_index=i))
-    meta = ScanMetadata(source="depth.synthetic_planes", source_format="synthetic", depth_range=(1.0, 5.0))
+    meta = ScanMetadata(source="recon.plane_scene", source_format="synthetic", depth_range=(1.0, 5.0))
     return Scan(intr, frames, meta)

@@ -26,8 +26,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, ContextManager, Iterator
 
-from .errors import ReconError
-from .io import write_json_atomic
+import numpy as np
+
+from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, trained_depth_range, weights_digest
+from depth.inference import estimate_depth
+from depth.metrics import evaluate_depth_folder
+from depth.options import DepthOptions
+from fusion.evaluate import mesh_metrics
+from fusion.mesh import load_mesh, save_mesh
+from fusion.tsdf import TSDFConfig, fuse_scan
+from poses.evaluate import pose_metrics
+from poses.sfm import PosesConfig
+from recon.errors import ReconError
+from recon.io import write_json_atomic
+from recon.keyframes import KeyframeConfig, select_keyframes
+from recon.readers import detect_format, open_scan
+from recon.scan import Scan, gt_mesh_path, load_scan, save_scan
+
 from .resources import measure
 
 log = logging.getLogger("recon")
@@ -36,49 +51,67 @@ STAGES = ("scan", "depth", "fusion", "reference", "evaluate", "report")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 
 
-@dataclass
-class RunConfig:
-    """Everything that decides a run's outputs (and so when a stage must be redone)."""
+@dataclass(frozen=True)
+class InputConfig:
+    """What the run reads: the input and which of its frames, and where poses come from."""
 
-    input: str
-    out: str
+    path: str = ""
     format: str = "auto"
     poses: str = "auto"  # auto: the input's own poses when it has them, SfM otherwise; colmap: always SfM
-    mapper: str = "incremental"  # SfM mapper when SfM runs (the other one is the fallback)
-    gt_poses: str | None = None  # a scan whose poses score SfM's (a recorded input serves by itself)
     start: int = 0
     stride: int = 1
     max_frames: int | None = None
-    keyframe_threshold: float = 0.1  # combined translation/rotation motion between keyframes; 0 keeps all
-    mode: str = "estm"
-    weights: str | None = None  # None: the shipped default for learned modes
-    window: str = "offline"
-    memory_size: int | None = None
-    depth_range: tuple[float, float] | None = None
-    fit: str = "stretch"  # frames to the network size: "stretch" or "crop" (aspect kept)
-    device: str = "auto"
-    voxel_size: float = 0.04
-    fusion_depth_max: float = 4.0
-    min_confidence: float | None = None
-    gt_mesh: str | None = None
-    eval_max_depth: float = 10.0
-    report_frames: int = 6
+    gt_poses: str | None = None  # a scan whose poses score SfM's (a recorded input serves by itself)
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    gt_mesh: str | None = None  # None: the scan's own GT mesh, or the fusion of its GT depth
+    max_depth: float = 10.0  # depth evaluation range end (metres)
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    frames: int = 6  # keyframes shown as image / depth / error panels
+
+
+@dataclass
+class RunConfig:
+    """Everything that decides a run's outputs, composed of the stages' own configs."""
+
+    input: InputConfig
+    out: str
+    sfm: PosesConfig = field(default_factory=PosesConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    depth: DepthOptions = field(default_factory=DepthOptions)
+    fusion: TSDFConfig = field(default_factory=TSDFConfig)
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
+    report: ReportConfig = field(default_factory=ReportConfig)
+
+    def validate(self) -> "RunConfig":
+        """Every option checked before the first stage runs."""
+        if self.input.poses not in ("auto", "supplied", "colmap"):
+            raise ReconError(f"unknown --poses {self.input.poses!r} (auto, supplied, colmap)")
+        self.keyframes.validate()
+        self.depth.validate()
+        self.fusion.validate()
+        return self
 
     def stage_options(self, stage: str) -> dict:
         """The options a stage's outputs depend on (device choice is not among them; the weights' content is)."""
-        keys = {
-            "scan": ("input", "format", "poses", "mapper", "start", "stride", "max_frames"),
-            "evaluate": ("eval_max_depth", "gt_poses"),
-            "depth": ("keyframe_threshold", "mode", "weights", "window", "memory_size", "depth_range", "fit"),
-            "fusion": ("voxel_size", "fusion_depth_max", "min_confidence"),
-            "reference": ("gt_mesh", "voxel_size", "fusion_depth_max"),
-            "report": ("report_frames",),
+        a = dataclasses.asdict
+        scan_input = {k: v for k, v in a(self.input).items() if k != "gt_poses"}
+        fusion = {k: v for k, v in a(self.fusion).items() if k != "device"}
+        options = {
+            "scan": {"input": scan_input, "sfm": a(self.sfm), "keyframes": a(self.keyframes)},
+            "depth": {k: v for k, v in a(self.depth).items() if k not in ("device", "compile")},
+            "fusion": fusion,
+            "reference": {"gt_mesh": self.evaluation.gt_mesh, "fusion": fusion},
+            "evaluate": {**a(self.evaluation), "gt_poses": self.input.gt_poses},
+            "report": a(self.report),
         }[stage]
-        options = {k: getattr(self, k) for k in keys}
-        if stage == "depth" and self.mode != "planesweep":
-            from depth.checkpoint import DEFAULT_WEIGHTS, weights_digest
-
-            options["weights_digest"] = weights_digest(self.weights or DEFAULT_WEIGHTS)
+        if stage == "depth" and self.depth.mode != "planesweep":
+            options["weights_digest"] = weights_digest(self.depth.weights or DEFAULT_WEIGHTS)
         return options
 
 
@@ -193,88 +226,72 @@ class Pipeline:
             yield lambda i, n: advance(1)
 
     # -- stages ------------------------------------------------------------------------------
-    def load_scan(self):
-        from .scan import load_scan
-
+    def load_scan(self) -> Scan:
         return load_scan(self.out / "scan")
 
     def keyframe_names(self) -> list[str]:
         return json.loads((self.out / "keyframes.json").read_text())["keyframes"]
 
-    def keyframe_scan(self):
+    def keyframe_scan(self) -> Scan:
         scan = self.load_scan()
         names = set(self.keyframe_names())
         return scan.subset([i for i, f in enumerate(scan.frames) if f.name in names])
 
     def stage_scan(self) -> dict:
-        from depth.selection import select_keyframes
-        from .scan import save_scan
-
-        cfg = self.config
-        src = Path(cfg.input)
+        cfg = self.config.input
+        src = Path(cfg.path)
         if not src.exists():
             raise ReconError(f"{src}: no such file or folder")
         if self._needs_sfm(src):
-            scan = self._sfm_scan(src)
+            self._sfm_scan(src)
         else:
-            from poses.readers import open_scan
-
             scan = open_scan(src, cfg.format).select(cfg.start, cfg.stride, cfg.max_frames)
             with self._bar("scan", len(scan)) as bar:
                 save_scan(scan, self.out / "scan", progress=bar)
         scan = self.load_scan()
-        if cfg.keyframe_threshold > 0:
-            keys = select_keyframes(scan.camera_to_world, cfg.keyframe_threshold)
-        else:
-            keys = list(range(len(scan)))
+        keys = select_keyframes(scan.camera_to_world, self.config.keyframes)
         if len(keys) < 3:
             raise ReconError(f"{src}: only {len(keys)} keyframes after selection; the camera barely moves "
-                             "(use more frames, or a lower --keyframe-threshold)")
-        write_json_atomic(self.out / "keyframes.json", {"threshold": cfg.keyframe_threshold,
+                             "(use more frames, or a lower --keyframe-distance)")
+        write_json_atomic(self.out / "keyframes.json", {"keyframe_distance": self.config.keyframes.keyframe_distance,
                                                         "keyframes": [scan.frames[i].name for i in keys]})
         return {"frames": len(scan), "keyframes": len(keys), "metric_scale": scan.metadata.metric_scale,
                 "source_format": scan.metadata.source_format, "has_depth": scan.has_depth,
                 "width": scan.intrinsics.width, "height": scan.intrinsics.height}
 
     def _needs_sfm(self, src: Path) -> bool:
-        if self.config.poses == "colmap":
+        poses = self.config.input.poses
+        if poses == "colmap":
             return True
-        if self.config.poses not in ("auto", "supplied"):
-            raise ReconError(f"unknown --poses {self.config.poses!r} (auto, supplied, colmap)")
         if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
-            if self.config.poses == "supplied":
+            if poses == "supplied":
                 raise ReconError(f"{src}: a plain video has no poses to supply (use --poses colmap)")
             return True
-        from poses.readers import detect_format
-
         try:
             detect_format(src)
             return False
         except ReconError:
-            if self.config.poses == "supplied" or not src.is_dir():
+            if poses == "supplied" or not src.is_dir():
                 raise
             return True  # a plain image folder
 
-    def _sfm_scan(self, src: Path):
-        from poses.ingest import IngestConfig
-        from poses.sfm import PosesConfig, SfMConfig, estimate_poses
+    def _sfm_scan(self, src: Path) -> Scan:
+        from poses.sfm import estimate_poses
 
-        cfg = self.config
-        if cfg.start:
+        if self.config.input.start:
             raise ReconError("--start is not supported when poses come from SfM (trim the video instead)")
-        config = PosesConfig(ingest=IngestConfig(stride=cfg.stride, max_frames=cfg.max_frames),
-                             sfm=SfMConfig(mapper=cfg.mapper))
-        scan, _ = estimate_poses(src, self.out / "scan", config)
+        ingest = dataclasses.replace(self.config.sfm.ingest, stride=self.config.input.stride,
+                                     max_frames=self.config.input.max_frames)
+        scan, _ = estimate_poses(src, self.out / "scan", dataclasses.replace(self.config.sfm, ingest=ingest))
         return scan
 
-    def gt_poses_scan(self):
+    def gt_poses_scan(self) -> Scan | None:
         """Ground-truth poses for an SfM run: --gt-poses, or the recorded scan SfM ignored the poses of."""
-        from poses.readers import detect_format, open_scan
-
-        if self.config.gt_poses:
-            return open_scan(self.config.gt_poses)
-        src = Path(self.config.input)
-        if self.config.poses == "colmap" and src.is_dir():
+        cfg = self.config.input
+        if cfg.gt_poses:
+            return open_scan(cfg.gt_poses)
+        src = Path(cfg.path)
+        if cfg.poses == "colmap" and src.is_dir():
             try:
                 detect_format(src)
             except ReconError:
@@ -282,112 +299,100 @@ class Pipeline:
             return open_scan(src)
         return None
 
-    def stage_depth(self) -> dict:
-        from depth.inference import DepthOptions, estimate_depth
-
-        from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, trained_depth_range
-
-        cfg = self.config
-        scan = self.keyframe_scan()
-        weights = cfg.weights or (None if cfg.mode == "planesweep" else DEFAULT_WEIGHTS)
-        depth_range = cfg.depth_range
-        learned_range = trained_depth_range(weights) if cfg.mode != "planesweep" else None
-        if depth_range is None and learned_range is None and scan.metadata.depth_range is None:
+    def depth_options(self, scan: Scan) -> DepthOptions:
+        """The run's depth options with the weights and range settled (never from GT depth)."""
+        opts = self.config.depth
+        if opts.mode != "planesweep":
+            opts = dataclasses.replace(opts, weights=opts.weights or DEFAULT_WEIGHTS)
+        learned_range = trained_depth_range(opts.weights) if opts.mode != "planesweep" else None
+        if opts.depth_range is None and learned_range is None and scan.metadata.depth_range is None:
             if not scan.metadata.metric_scale:
-                raise ReconError(f"{cfg.input}: the scan's scale is unknown and it states no depth range: "
-                                 "pass --depth-range MIN MAX in its units")
+                raise ReconError(f"{self.config.input.path}: the scan's scale is unknown and it states no depth "
+                                 "range: pass --depth-range MIN MAX in its units")
             # A recorded RGB-D scan rarely says; its GT depth must not decide it (that would leak ground truth).
-            depth_range = INDOOR_DEPTH_RANGE
-            log.info("depth: no depth range given, sweeping %.2f-%.2f m", *depth_range)
-        opts = DepthOptions(mode=cfg.mode, window=cfg.window, memory_size=cfg.memory_size,
-                            depth_range=depth_range, fit=cfg.fit, device=cfg.device)
+            opts = dataclasses.replace(opts, depth_range=INDOOR_DEPTH_RANGE)
+            log.info("depth: no depth range given, sweeping %.2f-%.2f m", *INDOOR_DEPTH_RANGE)
+        return opts
+
+    def stage_depth(self) -> dict:
+        scan = self.keyframe_scan()
+        opts = self.depth_options(scan)
         with self._bar("depth", len(scan)) as bar:
-            summary = estimate_depth(scan, self.out / "depth", opts, weights=weights, resume=True, progress=bar)
-        return {"mode": cfg.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],
+            summary = estimate_depth(scan, self.out / "depth", opts, resume=True, progress=bar)
+        return {"mode": opts.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],
                 "weights": summary.get("weights"), "config": summary.get("config"),
                 "depth_range": summary.get("depth_range")}
 
     def stage_fusion(self) -> dict:
-        from fusion.mesh import save_mesh
-        from fusion.tsdf import fuse_scan
-
         scan = self.keyframe_scan()
         with self._bar("fusion", len(scan)) as bar:
-            mesh = fuse_scan(scan, self.out / "depth", self._tsdf_config(), progress=bar)
+            mesh = fuse_scan(scan, self.out / "depth", self.config.fusion, progress=bar)
         save_mesh(mesh, self.out / "mesh.ply")
         return {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
 
-    def _tsdf_config(self):
-        from fusion.tsdf import TSDFConfig
-
-        cfg = self.config
-        return TSDFConfig(voxel_size=cfg.voxel_size, depth_max=cfg.fusion_depth_max,
-                          min_confidence=cfg.min_confidence, device="auto" if cfg.device == "auto" else cfg.device)
-
     def stage_reference(self) -> dict:
         """The GT mesh to score against: --gt-mesh, the scan's own, or the fusion of its GT depth."""
-        from fusion.mesh import load_mesh, save_mesh
-        from fusion.tsdf import fuse_scan
-
-        from .scan import gt_mesh_path
-
         target = self.out / "reference.ply"
         scan = self.load_scan()
-        given = Path(self.config.gt_mesh) if self.config.gt_mesh else gt_mesh_path(scan)
+        given = Path(self.config.evaluation.gt_mesh) if self.config.evaluation.gt_mesh else gt_mesh_path(scan)
         if given is not None:
             save_mesh(load_mesh(given), target)
             return {"source": str(given)}
         if scan.has_depth:
             with self._bar("reference", len(scan)) as bar:
-                mesh = fuse_scan(scan, "gt", self._tsdf_config(), progress=bar)
+                mesh = fuse_scan(scan, "gt", self.config.fusion, progress=bar)
             save_mesh(mesh, target)
             return {"source": "fusion of the ground-truth depth"}
         target.unlink(missing_ok=True)
         return {"source": None}
 
     def stage_evaluate(self) -> dict:
-        from depth.metrics import evaluate_depth_folder
-        from fusion.evaluate import mesh_metrics
-
         scan = self.load_scan()
-        kf = self.keyframe_scan()
         metrics: dict = {"metric_scale": scan.metadata.metric_scale}
-        if kf.has_depth:
-            d = evaluate_depth_folder(self.out / "depth", kf, max_depth=self.config.eval_max_depth,
-                                      align="none" if scan.metadata.metric_scale else "median")
-            metrics["depth"] = {k: d[k] for k in ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3",
-                                                  "coverage", "frames", "min_depth", "max_depth", "align")}
-            metrics["temporal"] = {k: d[k] for k in ("mae_mean", "mae_std", "flicker")}
-            metrics["depth_per_frame"] = d["per_frame"]
+        metrics.update(self._depth_metrics(scan))
         gt_scan = self.gt_poses_scan() if self.poses_from_sfm else None
         alignment = None
         if gt_scan is not None:
-            from poses.evaluate import pose_metrics
-
             p = pose_metrics(scan, gt_scan)
             metrics["poses"] = {"ate_rmse": p["ate_rmse"], "registered": p["registered"],
                                 "metric_scale": scan.metadata.metric_scale, "sim3_scale": p["scale"]}
             alignment = p["alignment"]
-        reference = self.out / "reference.ply"
-        if reference.is_file():
-            mesh = self.out / "mesh.ply"
-            if not scan.metadata.metric_scale and alignment is None:
-                metrics["mesh_skipped"] = ("the mesh's scale is unknown and no ground-truth poses align it "
-                                           "(pass --gt-poses SCAN)")
-            else:
-                if not scan.metadata.metric_scale:
-                    mesh = aligned_mesh(mesh, alignment)
-                    metrics["mesh_alignment"] = "Sim(3) from the camera trajectory to the ground-truth poses"
-                metrics["mesh"] = mesh_metrics(mesh, reference, scan=gt_scan if gt_scan is not None else scan)
+        metrics.update(self._mesh_metrics(scan, gt_scan, alignment))
         write_json_atomic(self.out / "metrics.json", metrics)
         return {k: v for k, v in metrics.items() if k in ("depth", "mesh", "poses")}
+
+    def _depth_metrics(self, scan: Scan) -> dict:
+        kf = self.keyframe_scan()
+        if not kf.has_depth:
+            return {}
+        d = evaluate_depth_folder(self.out / "depth", kf, max_depth=self.config.evaluation.max_depth,
+                                  align="none" if scan.metadata.metric_scale else "median")
+        return {"depth": {k: d[k] for k in ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3",
+                                           "coverage", "frames", "min_depth", "max_depth", "align")},
+                "temporal": {k: d[k] for k in ("mae_mean", "mae_std", "flicker")},
+                "depth_per_frame": d["per_frame"]}
+
+    def _mesh_metrics(self, scan: Scan, gt_scan: Scan | None, alignment: dict | None) -> dict:
+        reference = self.out / "reference.ply"
+        if not reference.is_file():
+            return {}
+        mesh = self.out / "mesh.ply"
+        if not scan.metadata.metric_scale and alignment is None:
+            return {"mesh_skipped": "the mesh's scale is unknown and no ground-truth poses align it "
+                                    "(pass --gt-poses SCAN)"}
+        out = {}
+        if not scan.metadata.metric_scale:
+            mesh = aligned_mesh(mesh, alignment)
+            out["mesh_alignment"] = "Sim(3) from the camera trajectory to the ground-truth poses"
+        out["mesh"] = mesh_metrics(mesh, reference, scan=gt_scan if gt_scan is not None else scan)
+        return out
 
     @property
     def poses_from_sfm(self) -> bool:
         return (self.out / "scan" / "poses_report.json").is_file()
 
     def stage_report(self) -> dict:
-        from .report import write_report
+        from apps.report import write_report
 
         report = self.summary()
         write_json_atomic(self.out / "report.json", report)
@@ -400,7 +405,7 @@ class Pipeline:
         report = {k: metrics[k] for k in ("depth", "temporal", "mesh", "poses") if k in metrics}
         report["metric_scale"] = metrics.get("metric_scale")
         report["timing"] = {k: round(v.seconds, 3) for k, v in self.records.items() if v.done}
-        report["memory"] = {"peak_rss_mb": max((v.peak_rss_mb for v in self.records.values()), default=0.0),
+        report["memory"] = {"peak_rss_mb": round(max((v.peak_rss_mb for v in self.records.values()), default=0.0), 1),
                             "per_stage_mb": {k: round(v.peak_rss_mb, 1) for k, v in self.records.items()}}
         report["stages"] = {k: v.info for k, v in self.records.items()}
         report["config"] = dataclasses.asdict(self.config)
@@ -409,10 +414,6 @@ class Pipeline:
 
 def aligned_mesh(mesh_path: Path, alignment: dict):
     """The predicted mesh moved into the ground truth's frame by a Sim(3) {scale, rotation, translation}."""
-    import numpy as np
-
-    from fusion.mesh import load_mesh
-
     mesh = load_mesh(mesh_path)
     mesh.vertices = alignment["scale"] * np.asarray(mesh.vertices) @ np.asarray(alignment["rotation"]).T \
         + np.asarray(alignment["translation"])

@@ -1,17 +1,18 @@
-"""Pick a training checkpoint on held-out data only: unseen synthetic rooms and ICL-NUIM (never 7-Scenes).
+"""Pick a training checkpoint on held-out data only: unseen synthetic rooms, the demo room and ICL-NUIM
+(never 7-Scenes).
 
-    python scripts/select_checkpoint.py runs/compact_cpu/step_001200.pt runs/compact_cpu/step_001300.pt \
-        --out runs/select --baselines
+    python experiments/select_checkpoint.py runs/lite_v2/step_003000.pt compact --out runs/select --baselines
 
-Each checkpoint runs ESTM (memory 2) on every held-out scan through `recon.results.depth_table`
-(the same code as the 7-Scenes table); `--baselines` adds plane sweep and independent rows
-for the comparison the shipping rules need (ship only if ESTM beats the plane sweep here; ship as the
-default `compact` only if its meshes beat the plane sweep's too). Every row's depth is also fused
-(TSDF, 4 cm voxels) and scored against the fusion of the scan's GT depth: mesh precision, recall and
-F-score at 5 cm.
-Held-out synthetic rooms: seeds 910001 and 910002 (training streams use seeds below 100,
-validation clips 900001/900002), 30 frames at 3 fps with realistic sensor effects, 320x256.
-ICL-NUIM living room 1: every 5th frame at 320x256. Writes summary.json and prints a table.
+Each checkpoint (a file, or a shipped name such as the incumbent `compact`) runs ESTM (memory 2) on
+every held-out scan through `experiments.results_7scenes.depth_table` (the same code as the 7-Scenes
+table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
+need (experiments/ship_weights.py). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
+against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. Every row
+sweeps the first checkpoint's trained depth range.
+Held-out synthetic rooms: seeds 910001 and 910002 (training rooms come from other seeds,
+validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256.
+The demo room (seed 7, clean): every 4th frame, 320x240. ICL-NUIM living room 1: every 5th frame at
+320x256. Writes summary.json and prints a table.
 """
 from __future__ import annotations
 
@@ -24,12 +25,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 HELDOUT_SEEDS = (910001, 910002)
-DEPTH_RANGE = (0.25, 6.0)
 ICL = ROOT.parent / "shared" / "data" / "iclnuim-livingroom1"
 
 
 def heldout_scans(cache: Path):
-    from poses.readers import open_scan
+    from recon.readers import open_scan
     from recon.synthetic import SensorEffects, SynthConfig, write_synthetic_scan
 
     scans = {}
@@ -39,6 +39,9 @@ def heldout_scans(cache: Path):
             write_synthetic_scan(SynthConfig(seed=seed, frames=30, fps=3.0, width=320, height=256,
                                              effects=SensorEffects.realistic()), folder)
         scans[f"synthetic_{seed}"] = open_scan(folder)
+    from apps.commands.demo import ensure_example
+
+    scans["demo_s4"] = open_scan(ensure_example()).select(0, 4)  # the room `recon demo` shows, every 4th frame
     if ICL.is_dir():
         scans["iclnuim_s5"] = open_scan(ICL).select(0, 5).resized(320, 256)
     return scans
@@ -54,7 +57,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from recon.results import TableOptions, depth_table, mesh_scores
+    from depth.checkpoint import trained_depth_range
+    from experiments.results_7scenes import TableOptions, depth_table, mesh_scores
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -69,7 +73,8 @@ def main(argv=None) -> int:
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():
-            opts = TableOptions(weights=ck, rows=rows, depth_range=DEPTH_RANGE, mesh=False)
+            # every row sweeps the first checkpoint's trained range (the plane sweep's too)
+            opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(args.checkpoints[0]), mesh=False)
             res = depth_table(scan, out / name / scan_name, opts, log=lambda s: print(f"{name} {scan_name}: {s}"))
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"

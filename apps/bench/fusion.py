@@ -58,7 +58,7 @@ def run(args) -> int:
 
     from fusion.evaluate import mesh_metrics
     from fusion.tsdf import TSDFConfig
-    from poses.readers import open_scan
+    from recon.readers import open_scan
 
     if not Path(args.scan).exists():
         raise ReconError(f"{args.scan}: benchmark scan not found (pass --scan)")

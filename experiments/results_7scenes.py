@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
+from depth.checkpoint import DEFAULT_WEIGHTS
 from recon.errors import ReconError
 from recon.scan import Scan
 
@@ -37,10 +38,10 @@ DEFAULT_ROWS = ("planesweep", "independent", "joint", "estm_m1", "estm_m2", "est
 class TableOptions:
     """What to run. `depth_range` is the sweep range (metres); `eval_range` the scoring range."""
 
-    weights: str = "compact"
+    weights: str = DEFAULT_WEIGHTS
     concat_weights: str | None = None  # a checkpoint trained with fusion="concat": adds an `estm concat` row
     rows: tuple[str, ...] = DEFAULT_ROWS
-    depth_range: tuple[float, float] = (0.25, 6.0)
+    depth_range: tuple[float, float] | None = None  # None: the weights' trained range (every row alike)
     eval_range: tuple[float, float] = (1e-3, 10.0)
     size: tuple[int, int] = (320, 256)
     device: str = "cpu"
@@ -54,18 +55,21 @@ class TableOptions:
 
 
 def row_options(row: str, opts: TableOptions):
-    """(DepthOptions, weights) of a table row name."""
-    from depth.inference import DepthOptions
+    """The DepthOptions of a table row name. Every row sweeps the same range: the weights' trained one
+    unless `opts.depth_range` says otherwise."""
+    from depth.checkpoint import trained_depth_range
+    from depth.options import DepthOptions
 
-    common = dict(depth_range=tuple(opts.depth_range), device=opts.device)
+    rng = tuple(opts.depth_range) if opts.depth_range else trained_depth_range(opts.weights)
+    common = dict(depth_range=rng, device=opts.device)
     if row == "planesweep":
-        return DepthOptions(mode="planesweep", **common), None
+        return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):
-        return DepthOptions(mode=row, **common), opts.weights
+        return DepthOptions(mode=row, weights=opts.weights, **common)
     if row.startswith("estm_m"):
-        return DepthOptions(mode="estm", memory_size=int(row[len("estm_m"):]), **common), opts.weights
+        return DepthOptions(mode="estm", weights=opts.weights, memory_size=int(row[len("estm_m"):]), **common)
     if row == "estm_concat":
-        return DepthOptions(mode="estm", **common), opts.concat_weights
+        return DepthOptions(mode="estm", weights=opts.concat_weights, **common)
     raise ValueError(f"unknown table row {row!r}")
 
 
@@ -84,12 +88,12 @@ def depth_table(scan: Scan, out_dir: str | Path, opts: TableOptions = TableOptio
     out_dir = Path(out_dir)
     rows = list(opts.rows) + (["estm_concat"] if opts.concat_weights else [])
     results: dict = {"frames": len(scan), "names": [scan.names[0], scan.names[-1]], "size": list(opts.size),
-                     "depth_range": list(opts.depth_range), "eval_range": list(opts.eval_range),
+                     "depth_range": list(row_options("planesweep", opts).depth_range), "eval_range": list(opts.eval_range),
                      "weights": opts.weights, "rows": {}, **opts.extra}
     for row in rows:
-        depth_opts, weights = row_options(row, opts)
+        depth_opts = row_options(row, opts)
         t0 = time.time()
-        summary = estimate_depth(scan, out_dir / row, depth_opts, weights=weights, resume=opts.resume)
+        summary = estimate_depth(scan, out_dir / row, depth_opts, resume=opts.resume)
         metrics = evaluate_depth_folder(out_dir / row, scan, *opts.eval_range)
         metrics.pop("per_frame", None)
         metrics["abs_rel_covered"] = covered_abs_rel(out_dir / row, scan, *opts.eval_range)

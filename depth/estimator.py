@@ -1,0 +1,182 @@
+"""The learned inference modes over a scan: ESTM (temporal memory), joint and independent.
+
+Frames are fitted to the network size (`depth.views.network_view`: stretched whole, or scaled to
+cover it and centre-cropped so the aspect ratio is kept), predicted there and resampled back to the
+scan's size; with `crop`, pixels outside the window get depth 0 (invalid) and confidence 0.
+
+  independent  each frame alone with its sources; the EST transformer sees no memory.
+  joint        consecutive groups of `joint_group` frames predicted together, as in
+               training: every frame of the group attends to the others.
+  estm         frames in order; the EST transformer reads a memory of the last N
+               frames' key/value volumes (`TemporalMemory`), the oldest dropped first.
+"""
+from __future__ import annotations
+
+import collections
+import os
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+
+from recon.errors import ReconError
+from recon.scan import Scan
+
+from .checkpoint import build_model, load_checkpoint
+from .config import get_config
+from .device import resolve_device
+from .model import ESTNet, MemoryEntry, TargetOutput, TargetState
+from .options import NETWORK_MODES, DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range
+from .views import image_tensor, network_view, to_scan_pixels
+
+
+class TemporalMemory:
+    """The ESTM memory: key/value volumes of the last `size` estimated frames (FIFO)."""
+
+    def __init__(self, size: int):
+        if size < 0:
+            raise ReconError(f"ESTM memory size must be >= 0, got {size}")
+        self._entries: collections.deque[MemoryEntry] = collections.deque(maxlen=size)
+
+    def add(self, entry: MemoryEntry) -> None:
+        self._entries.append(entry.detached())
+
+    @property
+    def entries(self) -> list[MemoryEntry]:
+        return list(self._entries)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self._entries]
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+class _Pass:
+    """One pass of the network over a scan: the fitted view, cached per-frame features, the calls."""
+
+    def __init__(self, estimator: "DepthEstimator", scan: Scan, opts: DepthOptions, capacity: int = 12):
+        cfg, device = estimator.config, estimator.device
+        self.scan, self.device = scan, device
+        self.sources = frame_sources(scan, opts.sources)
+        self.net_scan = network_view(scan, cfg.image_width, cfg.image_height, opts.fit)
+        self.K = torch.from_numpy(self.net_scan.intrinsics.K).float()[None].to(device)
+        self.depth_range = torch.tensor([scan_depth_range(scan, opts.depth_range)], device=device)
+        self.features, self.prepare_call, self.finish_call = estimator.network_calls(opts.compile)
+        self.normalise = estimator.model.normalise
+        self.bf16 = opts.precision == "bf16"
+        self._cache: collections.OrderedDict[int, tuple[torch.Tensor, torch.Tensor]] = collections.OrderedDict()
+        self.capacity = capacity
+
+    def precision(self):
+        """Autocast is entered per network call, never across a `yield` (it would leak into the caller)."""
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16)
+
+    def frame(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(normalised image (1, 3, H, W), features (1, F, H/4, W/4)) of frame i (small LRU cache)."""
+        if i in self._cache:
+            self._cache.move_to_end(i)
+            return self._cache[i]
+        image = self.normalise(image_tensor(self.net_scan, i)[None].to(self.device))
+        self._cache[i] = item = (image, self.features(image))
+        if len(self._cache) > self.capacity:
+            self._cache.popitem(last=False)
+        return item
+
+    def pose(self, idx) -> torch.Tensor:
+        return torch.from_numpy(self.scan.camera_to_world[idx]).float().to(self.device)
+
+    def prepare(self, i: int) -> TargetState:
+        with self.precision():
+            image, feats = self.frame(i)
+            src_feats = torch.stack([self.frame(j)[1] for j in self.sources[i]], 1)
+            return self.prepare_call(image, feats, src_feats, self.K, self.pose([i]), self.pose(self.sources[i])[None],
+                                     self.depth_range)
+
+    def finish(self, state: TargetState, memories: list[MemoryEntry]) -> TargetOutput:
+        with self.precision():
+            return self.finish_call(state, memories)
+
+    def result(self, i: int, out: TargetOutput) -> FrameDepth:
+        view = (self.net_scan, self.scan.intrinsics.size)
+        d = to_scan_pixels(out.depths[3], *view)[0, 0].cpu().numpy()
+        conf = to_scan_pixels(out.confidence, *view)[0, 0].cpu().numpy()
+        if not np.all(np.isfinite(d)):
+            raise ReconError(f"frame {self.scan.frames[i].name}: the network produced non-finite depth")
+        return FrameDepth(i, self.scan.frames[i].name, d.astype(np.float32), conf.astype(np.float32),
+                          list(self.sources[i]))
+
+
+class DepthEstimator:
+    """A loaded network on a device, ready to run the learned modes over scans."""
+
+    def __init__(self, model: ESTNet, device: torch.device | str = "cpu",
+                 trained_depth_range: tuple[float, float] | None = None):
+        self.device = torch.device(device)
+        self.model = model.to(self.device).eval()
+        self.config = model.cfg
+        # The planes the network was trained on: its context volume is tied to plane indices, so it
+        # should sweep the same range unless the caller says otherwise.
+        self.trained_depth_range = trained_depth_range
+        self._compiled: tuple[Callable, Callable, Callable] | None = None
+
+    def network_calls(self, compile: bool = False) -> tuple[Callable, Callable, Callable]:
+        """The network's (frame_features, prepare, finish), compiled by torch.compile when asked (once).
+
+        Shapes are static (one network size), so compiling pays off: the ESTM loop calls these
+        three per frame, and the memory's growth from 0 to N entries costs N + 1 compiles.
+        """
+        m = self.model
+        if not compile:
+            return m.frame_features, m.prepare, m.finish
+        if self._compiled is None:
+            self._compiled = tuple(torch.compile(f, dynamic=False) for f in (m.frame_features, m.prepare, m.finish))
+        return self._compiled
+
+    @classmethod
+    def from_weights(cls, weights: str | os.PathLike, device: str = "auto", config: str | None = None,
+                     ) -> "DepthEstimator":
+        """Load shipped weights by name (`lite`) or a checkpoint path; `config` names the expected config."""
+        ckpt = load_checkpoint(weights, expected=get_config(config) if config else None)
+        rng = (ckpt.metadata.get("data") or {}).get("depth_range")
+        return cls(build_model(ckpt), resolve_device(device), tuple(float(x) for x in rng) if rng else None)
+
+    @torch.no_grad()
+    def run(self, scan: Scan, opts: DepthOptions = DepthOptions(), memory: TemporalMemory | None = None,
+            skip: frozenset[int] = frozenset()) -> Iterator[FrameDepth]:
+        """Yield every frame's depth in order. `memory` (ESTM) can be passed in to inspect it;
+        `skip` lists frame indices not to compute: any frames in independent mode; in estm mode the
+        first frames in order, with `memory` holding the entries of the last N of them (a resume)."""
+        if opts.mode not in NETWORK_MODES:
+            raise ReconError(f"mode {opts.mode!r} is not a network mode ({', '.join(NETWORK_MODES)})")
+        opts.validate()
+        check_scan(scan)
+        run = _Pass(self, scan, opts)
+        if opts.mode == "joint":
+            yield from self._joint(run, opts.joint_group)
+            return
+        if memory is None:
+            memory = TemporalMemory(self.config.memory_size if opts.memory_size is None else opts.memory_size)
+        for i in run.sources:
+            if i in skip:
+                continue
+            out = run.finish(run.prepare(i), memory.entries if opts.mode == "estm" else [])
+            if opts.mode == "estm":
+                out.memory.name = scan.frames[i].name
+                memory.add(out.memory)
+            yield run.result(i, out)
+
+    @staticmethod
+    def _joint(run: _Pass, group_size: int) -> Iterator[FrameDepth]:
+        order = list(run.sources)
+        for start in range(0, len(order), group_size):
+            group = order[start:start + group_size]
+            states = [run.prepare(i) for i in group]
+            entries = [MemoryEntry(s.key, s.value, s.camera_to_world) for s in states]
+            for k, (i, state) in enumerate(zip(group, states)):
+                out = run.finish(state, [e for j, e in enumerate(entries) if j != k])
+                entries[k] = out.memory
+                yield run.result(i, out)
+
+

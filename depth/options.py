@@ -1,0 +1,125 @@
+"""How the depth stage runs (`DepthOptions`), what it yields per frame, and which frames and sources.
+
+The options are the depth stage's config: `recon run` composes them into its run config and
+`recon depth` builds them from the same command-line options.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from recon.errors import ReconError
+from recon.keyframes import SourceConfig, select_sources
+from recon.scan import Scan
+
+
+log = logging.getLogger(__name__)
+
+MODES = ("estm", "joint", "independent", "planesweep")
+NETWORK_MODES = MODES[:3]
+PRECISIONS = ("fp32", "bf16")
+FITS = ("stretch", "crop")
+
+
+@dataclass(frozen=True)
+class PlaneSweepOptions:
+    """The classical plane sweep (`depth.planesweep`)."""
+
+    num_planes: int = 64
+    spacing: str = "inverse"
+    ncc_window: int = 7
+    aggregation_window: int = 5
+    min_score: float = 0.5  # NCC of the chosen plane
+    min_texture: float = 4e-4  # variance of the reference window, intensities in [0, 1]
+    min_agreeing_sources: int = 2
+    agreement_planes: float = 2.0
+    width: int = 320  # working width (height follows the aspect ratio)
+
+
+@dataclass
+class FrameDepth:
+    """One frame's result at the scan's resolution."""
+
+    index: int
+    name: str
+    depth: np.ndarray  # (H, W) float32 metres, 0 = invalid
+    confidence: np.ndarray  # (H, W) float32 in [0, 1]
+    sources: list[int]
+
+
+@dataclass(frozen=True)
+class DepthOptions:
+    """`depth_range` overrides the scan's metadata range (and the weights' trained range)."""
+
+    mode: str = "estm"
+    weights: str | None = None  # shipped name or checkpoint path; None: the shipped default (learned modes)
+    memory_size: int | None = None  # ESTM memory length N; None = the network config's (2)
+    depth_range: tuple[float, float] | None = None
+    sources: SourceConfig = field(default_factory=SourceConfig)
+    joint_group: int = 3
+    device: str = "auto"
+    config: str | None = None  # expected network config name; None accepts the checkpoint's
+    precision: str = "fp32"  # "bf16": autocast the network to bfloat16 (CUDA, and CPUs with bf16 units)
+    fit: str = "stretch"  # "stretch" the frame to the network size, or "crop" it (aspect kept, borders lost)
+    compile: bool = False  # torch.compile the network (a one-off compile of about a minute, then faster frames)
+    planesweep: PlaneSweepOptions = field(default_factory=PlaneSweepOptions)
+
+    def validate(self) -> "DepthOptions":
+        """Refuse bad values before any work (one line naming the option)."""
+        for name, value, allowed in (("mode", self.mode, MODES), ("precision", self.precision, PRECISIONS),
+                                     ("fit", self.fit, FITS)):
+            if value not in allowed:
+                raise ReconError(f"unknown depth {name} {value!r} (expected one of {', '.join(allowed)})")
+        if self.memory_size is not None and self.memory_size < 0:
+            raise ReconError(f"--memory must be >= 0, got {self.memory_size}")
+        if self.depth_range is not None:
+            check_depth_range(self.depth_range)
+        self.sources.validate()
+        return self
+
+
+def check_depth_range(rng) -> tuple[float, float]:
+    lo, hi = float(rng[0]), float(rng[1])
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+        raise ReconError(f"invalid depth range {tuple(rng)!r}: need 0 < min < max")
+    return lo, hi
+
+
+def scan_depth_range(scan: Scan, override: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The depth range to sweep: the override, else the scan's metadata; validated."""
+    rng = override or scan.metadata.depth_range
+    if rng is None:
+        raise ReconError(f"{scan.root or 'scan'}: no depth range in the scan metadata; pass one "
+                         "(--depth-range MIN MAX, in scan units)")
+    return check_depth_range(rng)
+
+
+def check_scan(scan: Scan) -> None:
+    scan.validate()  # poses: shape, finite, rigid
+    if len(scan) < 3:
+        raise ReconError(f"{scan.root or 'scan'}: depth needs at least 3 frames (a reference and two sources), "
+                         f"got {len(scan)}")
+
+
+def frame_sources(scan: Scan, sources: SourceConfig) -> dict[int, list[int]]:
+    """Sources of every frame to estimate, by frame index.
+
+    An online window cannot serve the first frames of a video (no past yet): they are
+    skipped until the first frame with enough past sources. Any other frame without
+    `num_sources` usable sources is an error naming it.
+    """
+    ranked = select_sources(scan.camera_to_world, sources)
+    chosen: dict[int, list[int]] = {}
+    for i in range(len(scan)):
+        if len(ranked[i]) >= sources.num_sources:
+            chosen[i] = ranked[i]
+        elif sources.window == "online" and not chosen and i < len(scan) - 1:
+            log.info("online window: frame %s has too little past, skipped", scan.frames[i].name)
+        else:
+            raise ReconError(
+                f"{scan.root or 'scan'} frame {scan.frames[i].name}: only {len(ranked[i])} usable source frame(s) "
+                f"(pose distance >= {sources.min_baseline} within {sources.source_window} frames, {sources.window} "
+                "window); the camera barely moves here - use frames with more motion (--stride, --keyframe-distance)")
+    return chosen

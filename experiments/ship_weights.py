@@ -1,0 +1,91 @@
+"""Write a shipped weights file (depth/weights/<name>.pt) from a selected checkpoint, by fixed rules.
+
+    python experiments/ship_weights.py runs/lite_v2/step_003000.pt --run runs/lite_v2 \
+        --selection runs/select/summary.json --name lite --incumbent compact
+
+The rules, all on held-out data only (experiments/select_checkpoint.py: unseen synthetic rooms, the
+demo room, ICL-NUIM; never 7-Scenes):
+1. ESTM beats the plane sweep on the held-out synthetic scans (mean Abs Rel and mean delta<1.25);
+2. ESTM's mesh F-score beats the plane sweep's on every held-out scan;
+3. with --incumbent (the weights shipped today), ESTM beats the incumbent's ESTM on the mean Abs Rel
+   and the mean mesh F-score over every held-out scan.
+Passing all three writes `<name>.pt`; otherwise nothing is written (exit 1). Stores float16
+weights (no optimiser state) with metadata: data, steps, hardware, training time, clip validation,
+the held-out figures and the rule results.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def rules(sel: dict, key: str, incumbent: str | None) -> dict[str, bool]:
+    """Each rule's verdict (see the module docstring), printing the figures it used."""
+    synth = [n for n in sel["planesweep"] if n.startswith("synthetic") and n in sel[key]]
+    heldout = [n for n in sel["planesweep"] if n in sel[key]]
+
+    def mean(row, metric, names):
+        return statistics.mean(sel[row][n][metric] for n in names)
+
+    est = {m: mean(key, m, synth) for m in ("abs_rel", "a1")}
+    ps = {m: mean("planesweep", m, synth) for m in ("abs_rel", "a1")}
+    print(f"held-out synthetic ({', '.join(synth)}): ESTM abs_rel {est['abs_rel']:.4f} a1 {est['a1']:.3f}; "
+          f"plane sweep abs_rel {ps['abs_rel']:.4f} a1 {ps['a1']:.3f}")
+    mesh = {n: (sel[key][n]["mesh_fscore"], sel["planesweep"][n]["mesh_fscore"]) for n in heldout}
+    print("held-out mesh F, ESTM / plane sweep: " + ", ".join(f"{n} {e:.3f} / {p:.3f}" for n, (e, p) in mesh.items()))
+    verdict = {"beats plane sweep depth": est["abs_rel"] < ps["abs_rel"] and est["a1"] > ps["a1"],
+               "beats plane sweep mesh on every scan": all(e > p for e, p in mesh.values())}
+    if incumbent:
+        inc = f"{incumbent}:estm_m2"
+        both = [n for n in heldout if n in sel.get(inc, {})]
+        new = (mean(key, "abs_rel", both), mean(key, "mesh_fscore", both))
+        old = (mean(inc, "abs_rel", both), mean(inc, "mesh_fscore", both))
+        print(f"against {incumbent} on {', '.join(both)}: abs_rel {new[0]:.4f} vs {old[0]:.4f}, "
+              f"mesh F {new[1]:.3f} vs {old[1]:.3f}")
+        verdict[f"beats {incumbent}"] = bool(both) and new[0] < old[0] and new[1] > old[1]
+    return verdict
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoint")
+    p.add_argument("--run", required=True, help="training run folder (log.jsonl)")
+    p.add_argument("--selection", required=True, help="summary.json of experiments/select_checkpoint.py")
+    p.add_argument("--name", required=True, help="shipped name, e.g. lite (writes depth/weights/<name>.pt)")
+    p.add_argument("--incumbent", default=None, help="the shipped weights it must beat (their selection key)")
+    args = p.parse_args(argv)
+
+    from depth.checkpoint import WEIGHTS_DIR, build_model, load_checkpoint, save_checkpoint
+
+    ck = load_checkpoint(args.checkpoint)
+    sel = json.loads(Path(args.selection).read_text())
+    key = f"{Path(args.checkpoint).stem}:estm_m2"
+    if key not in sel or "planesweep" not in sel:
+        raise SystemExit(f"{args.selection}: no held-out figures for {key} and the plane sweep")
+    verdict = rules(sel, key, args.incumbent)
+    for rule, ok in verdict.items():
+        print(f"  {'PASS' if ok else 'FAIL'}  {rule}")
+    if not all(verdict.values()):
+        print("not shipped")
+        return 1
+    recs = [json.loads(x) for x in (Path(args.run) / "log.jsonl").read_text().splitlines() if x.strip()]
+    val = [r for r in recs if r["kind"] == "val"]
+    meta = dict(ck.metadata)
+    meta.update({"validation": {"clips": [v for v in val if v["step"] == meta.get("steps")] or val[-1:],
+                                "heldout_scans": {k: v for k, v in sel.items() if k in (key, "planesweep")},
+                                "rules": verdict,
+                                "selection": "held-out synthetic rooms, the demo room and ICL-NUIM; never 7-Scenes"},
+                 "source_checkpoint": str(args.checkpoint)})
+    out = save_checkpoint(WEIGHTS_DIR / f"{args.name}.pt", build_model(ck), ck.config, meta, fp16=True)
+    print(f"shipped {out} ({out.stat().st_size / 1e6:.2f} MB, float16)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
