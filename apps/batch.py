@@ -14,18 +14,21 @@ import io
 import json
 import logging
 import math
+import os
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Iterable
+from urllib.parse import quote
 
 from recon.errors import ReconError
-from recon.io import write_bytes_atomic, write_json_atomic
-from apps.pipeline import VIDEO_SUFFIXES, Pipeline, RunConfig
+from recon.io import check_file_name, write_bytes_atomic, write_json_atomic
+from apps.pipeline import STAGES, VIDEO_SUFFIXES, Pipeline, RunConfig
 
 log = logging.getLogger("recon")
 
+RAY_LOG_DRAIN_S = 1.0  # how long the workers' last lines get to reach the driver before Ray shuts down
 SUMMARY_KEYS = (("depth", "abs_rel"), ("depth", "a1"), ("temporal", "flicker"), ("mesh", "fscore"),
                 ("mesh", "acc"), ("mesh", "comp"), ("poses", "ate_rmse"))
 
@@ -68,7 +71,7 @@ def run_one(config: RunConfig) -> dict:
         report_path = Path(config.out) / "report.json"
         pipeline = Pipeline(config)
         pipeline._load_state()
-        if report_path.is_file() and all(pipeline.is_current(s) for s in ("scan", "depth", "fusion", "evaluate")):
+        if report_path.is_file() and all(pipeline.is_current(s) for s in STAGES):  # each stage's fingerprint
             return {"name": name, "status": "skipped", "seconds": 0.0, "report": json.loads(report_path.read_text())}
         report = pipeline.run()
         return {"name": name, "status": "done", "seconds": time.perf_counter() - started, "report": report}
@@ -79,11 +82,29 @@ def run_one(config: RunConfig) -> dict:
         return {"name": name, "status": "failed", "seconds": time.perf_counter() - started, "error": last}
 
 
+def _no_token_notice(record: logging.LogRecord) -> bool:
+    """Ray turns on token authentication for a local instance and warns that it did: keep it, drop the notice."""
+    return "Token authentication is enabled" not in record.getMessage()
+
+
+def run_one_logged(config: RunConfig, level: int = logging.INFO) -> dict:
+    """`run_one` in a worker process (a Ray task): the pipeline's stage lines go to the worker's stderr,
+    which Ray forwards to the driver prefixed by the task's name."""
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    recon_log = logging.getLogger("recon")
+    recon_log.handlers[:] = [handler]
+    recon_log.setLevel(level)
+    recon_log.propagate = False
+    return run_one(config)
+
+
 def _configs(inputs: Iterable[Path], out: Path, template: RunConfig) -> list[RunConfig]:
     names: set[str] = set()
     configs = []
     for path in inputs:
-        name = path.stem if path.is_file() else path.name
+        resolved = path.resolve()  # `scans/room/..` names the folder it is, not `..`
+        name = check_file_name(resolved.stem if resolved.is_file() else resolved.name, f"{path}: scan name")
         while name in names:
             name += "_"
         names.add(name)
@@ -113,16 +134,26 @@ def run_local(configs: list[RunConfig], workers: int, on_result: Callable[[dict]
 def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float, gpus_per_scan: float,
             on_result: Callable[[dict], None]) -> list[dict]:
     """Ray tasks with CPU/GPU requests, on a local Ray instance or the cluster at `address`."""
+    # Ray merges lines of different workers that are alike but for words with digits (every scan's
+    # `fusion: done in 3.1 s`) and holds the repeats back for 5 s: one scan's line stood for all, and lines
+    # held at shutdown were lost. Each scan's own lines matter here. Ray reads this when first imported.
+    os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     try:
         import ray
     except ImportError:
         raise ReconError("--engine ray needs Ray: pip install 'recon-est[ray]'") from None
     started_here = not ray.is_initialized()
     if started_here:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+        notices = logging.getLogger("ray._private.authentication.authentication_token_setup")
+        if _no_token_notice not in notices.filters:
+            notices.addFilter(_no_token_notice)
+        ray.init(address=address, include_dashboard=False, log_to_driver=True, ignore_reinit_error=True,
+                 logging_level=logging.WARNING)
     try:
-        task = ray.remote(num_cpus=cpus_per_scan, num_gpus=gpus_per_scan, max_retries=0)(run_one)
-        pending = [task.remote(c) for c in configs]
+        task = ray.remote(num_cpus=cpus_per_scan, num_gpus=gpus_per_scan, max_retries=0)(run_one_logged)
+        level = logging.getLogger("recon").getEffectiveLevel()
+        # Named after its scan, a task's forwarded lines read `(scan pid=…) depth: done in 3.1 s`.
+        pending = [task.options(name=Path(c.out).name).remote(c, level) for c in configs]
         results = []
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -131,6 +162,7 @@ def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float,
         return results
     finally:
         if started_here:
+            time.sleep(RAY_LOG_DRAIN_S)  # forwarded lines still in flight are dropped by shutdown (ray#31931)
             ray.shutdown()
 
 
@@ -163,7 +195,7 @@ def write_summary(results: list[dict], out: Path) -> dict:
         for k, v in r.items():
             text = f"{v:.4f}" if isinstance(v, float) else html.escape(str(v if v is not None else ""))
             if k == "name" and r["status"] != "failed":
-                text = f"<a href='{html.escape(r['name'])}/report.html'>{text}</a>"
+                text = f"<a href=\"{html.escape(report_link(r['name']))}\">{text}</a>"
             cells.append(f"<td>{text}</td>")
         body.append(f"<tr>{''.join(cells)}</tr>")
     mean_cells = "".join(f"<td>{'' if v is None else f'{v:.4f}'}</td>" for v in means.values())
@@ -177,10 +209,23 @@ def write_summary(results: list[dict], out: Path) -> dict:
     return summary
 
 
+def report_link(name: str) -> str:
+    """A scan's report.html relative to index.html: `./` and percent-encoding keep any folder name (even
+    `javascript:...`) a path, never a URL scheme or markup."""
+    return f"./{quote(name, safe='')}/report.html"
+
+
 def run_batch(dataset: str | Path, out: str | Path, template: RunConfig, engine: str = "local", workers: int = 1,
               address: str | None = None, cpus_per_scan: float = 1.0, gpus_per_scan: float = 0.0,
               on_result: Callable[[dict], None] = lambda r: None) -> dict:
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ReconError(f"{out}: exists and is not a folder (--out names the batch folder)")
+    template.validate()
+    if template.evaluation.gt_mesh:  # one broken --gt-mesh is refused once, before any scan runs
+        from fusion.mesh import load_mesh
+
+        load_mesh(template.evaluation.gt_mesh)
     configs = _configs(discover_inputs(dataset), out, template)
     out.mkdir(parents=True, exist_ok=True)
     if engine == "local":

@@ -5,11 +5,13 @@ import argparse
 import json
 import re
 import sys
+from typing import TYPE_CHECKING
 
-from recon.scan import Scan
+if TYPE_CHECKING:  # the commands import this module to build their parsers: no numpy or OpenCV here
+    from recon.scan import Scan
 
 
-def open_selected_scan(path: str, args: argparse.Namespace) -> Scan:
+def open_selected_scan(path: str, args: argparse.Namespace) -> "Scan":
     """Open a scan with the reader named by --format and apply the frame selection."""
     from recon.readers import open_scan
 

@@ -6,8 +6,9 @@ outputs exist for the same options; `force` redoes a stage and everything after 
 A lock file keeps two runs out of one folder.
 
     DIR/scan/            canonical scan of the selected frames (poses supplied or from SfM)
+    DIR/.scan-sfm/       where SfM builds the scan (it replaces scan/ once SfM succeeded)
     DIR/keyframes.json   frames the depth stage estimates (camera-motion keyframes)
-    DIR/depth/           <frame>.npy/.png/.conf.npy + depth.json
+    DIR/depth/           <frame>.png/.conf.png (depth mm, confidence; the network grid) + depth.json
     DIR/mesh.ply         fused, cleaned mesh
     DIR/reference.ply    GT mesh used for scoring (given, or the fusion of GT depth)
     DIR/metrics.json     depth / temporal / mesh / pose metrics
@@ -28,19 +29,20 @@ from typing import Callable, ContextManager, Iterator
 
 import numpy as np
 
-from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, trained_depth_range, weights_digest
+from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, load_checkpoint, trained_depth_range, weights_digest
 from depth.inference import estimate_depth
 from depth.metrics import evaluate_depth_folder
 from depth.options import DepthOptions
 from fusion.evaluate import mesh_metrics
-from fusion.mesh import load_mesh, save_mesh
+from fusion.filtering import FilterConfig, filtered_depth
+from fusion.mesh import MeshCleanup, load_mesh, save_mesh
 from fusion.tsdf import TSDFConfig, fuse_scan
 from poses.evaluate import pose_metrics
 from poses.sfm import PosesConfig
-from recon.errors import ReconError
-from recon.io import write_json_atomic
+from recon.errors import ReconError, naming
+from recon.io import fingerprint_input, remove_path, replace_dir, write_json_atomic
 from recon.keyframes import KeyframeConfig, select_keyframes
-from recon.readers import detect_format, open_scan
+from recon.readers import FORMATS, detect_format, open_scan
 from recon.scan import Scan, gt_mesh_path, load_scan, save_scan
 
 from .resources import measure
@@ -49,6 +51,11 @@ log = logging.getLogger("recon")
 
 STAGES = ("scan", "depth", "fusion", "reference", "evaluate", "report")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
+POSE_SOURCES = ("auto", "supplied", "colmap")
+SFM_STAGING = ".scan-sfm"  # where SfM builds the scan before it replaces scan/
+# Folders the stages empty and refill: a link among them would let cleaning or writing reach outside the run folder.
+STAGE_FOLDERS = ("scan", "scan/frames", "scan/images", "scan/depth", "scan/colmap", SFM_STAGING, "depth",
+                 "depth/.estm-memory")
 
 
 @dataclass(frozen=True)
@@ -63,11 +70,33 @@ class InputConfig:
     max_frames: int | None = None
     gt_poses: str | None = None  # a scan whose poses score SfM's (a recorded input serves by itself)
 
+    def validate(self) -> "InputConfig":
+        if self.poses not in POSE_SOURCES:
+            raise ReconError(f"unknown --poses {self.poses!r} ({', '.join(POSE_SOURCES)})")
+        if self.format != "auto" and self.format not in FORMATS:
+            raise ReconError(f"unknown --format {self.format!r} (known: auto, {', '.join(FORMATS)})")
+        if self.start < 0 or self.stride < 1 or (self.max_frames is not None and self.max_frames < 1):
+            given = f"--start {self.start} --stride {self.stride}" + (
+                f" --max-frames {self.max_frames}" if self.max_frames is not None else "")
+            raise ReconError(f"invalid frame selection ({given}): need --start >= 0, --stride >= 1, --max-frames >= 1")
+        for option, path in (("input", self.path), ("--gt-poses", self.gt_poses)):
+            if path and not Path(path).exists():
+                raise ReconError(f"{path}: no such file or folder ({option})")
+        return self
+
 
 @dataclass(frozen=True)
 class EvalConfig:
     gt_mesh: str | None = None  # None: the scan's own GT mesh, or the fusion of its GT depth
     max_depth: float = 10.0  # depth evaluation range end (metres)
+
+    def validate(self) -> "EvalConfig":
+        """The mesh file must exist now; its content is read (and refused if broken) by the reference stage."""
+        if self.gt_mesh and not Path(self.gt_mesh).is_file():
+            raise ReconError(f"{self.gt_mesh}: mesh file not found (--gt-mesh)")
+        if not self.max_depth > 0:
+            raise ReconError(f"the depth evaluation range must end above 0 m, got {self.max_depth}")
+        return self
 
 
 @dataclass(frozen=True)
@@ -85,34 +114,57 @@ class RunConfig:
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     depth: DepthOptions = field(default_factory=DepthOptions)
     fusion: TSDFConfig = field(default_factory=TSDFConfig)
+    depth_filter: FilterConfig = field(default_factory=FilterConfig)  # what fusion trusts of the predicted depth
+    cleanup: MeshCleanup = field(default_factory=MeshCleanup)
     evaluation: EvalConfig = field(default_factory=EvalConfig)
     report: ReportConfig = field(default_factory=ReportConfig)
 
     def validate(self) -> "RunConfig":
-        """Every option checked before the first stage runs."""
-        if self.input.poses not in ("auto", "supplied", "colmap"):
-            raise ReconError(f"unknown --poses {self.input.poses!r} (auto, supplied, colmap)")
+        """Every option checked before the first stage runs (files named by options must exist; weights
+        given by path must be a readable checkpoint)."""
+        if self.out and Path(self.out).exists() and not Path(self.out).is_dir():
+            raise ReconError(f"{self.out}: exists and is not a folder (--out names the run folder)")
+        self.input.validate()
+        self.sfm.ingest.validate()
+        self.sfm.sfm.validate()
         self.keyframes.validate()
         self.depth.validate()
         self.fusion.validate()
+        self.depth_filter.validate()
+        self.cleanup.validate()
+        self.evaluation.validate()
+        if self.report.frames < 0:
+            raise ReconError(f"the report cannot show {self.report.frames} frames")
+        if self.depth.mode != "planesweep" and self.depth.weights:
+            load_checkpoint(self.depth.weights)
         return self
 
     def stage_options(self, stage: str) -> dict:
-        """The options a stage's outputs depend on (device choice is not among them; the weights' content is)."""
+        """What a stage's outputs depend on: its options, and the content of the files they name (the input, a
+        GT mesh or scan, the weights) by resolved path, sizes, times and metadata hashes, never by the path as
+        typed. Device choice is not among them."""
         a = dataclasses.asdict
-        scan_input = {k: v for k, v in a(self.input).items() if k != "gt_poses"}
+        if stage == "scan":
+            if not self.input.path:
+                raise ReconError("no input given (a video, an image folder or a scan)")
+            scan_input = {k: v for k, v in a(self.input).items() if k not in ("gt_poses", "path")}
+            scan_input["content"] = fingerprint_input(self.input.path, exclude=self.out)
+            return {"input": scan_input, "sfm": a(self.sfm), "keyframes": a(self.keyframes)}
+        if stage == "depth":
+            options = {k: v for k, v in a(self.depth).items() if k not in ("device", "compile", "weights")}
+            learned = self.depth.mode != "planesweep"
+            options["weights_digest"] = weights_digest(self.depth.weights or DEFAULT_WEIGHTS) if learned else None
+            return options
         fusion = {k: v for k, v in a(self.fusion).items() if k != "device"}
-        options = {
-            "scan": {"input": scan_input, "sfm": a(self.sfm), "keyframes": a(self.keyframes)},
-            "depth": {k: v for k, v in a(self.depth).items() if k not in ("device", "compile")},
-            "fusion": fusion,
-            "reference": {"gt_mesh": self.evaluation.gt_mesh, "fusion": fusion},
-            "evaluate": {**a(self.evaluation), "gt_poses": self.input.gt_poses},
+        gt_mesh, gt_poses = self.evaluation.gt_mesh, self.input.gt_poses
+        return {
+            "fusion": {**fusion, "filter": a(self.depth_filter), "cleanup": a(self.cleanup)},
+            "reference": {"gt_mesh": fingerprint_input(gt_mesh) if gt_mesh else None, "fusion": fusion,
+                          "gt_poses": fingerprint_input(gt_poses) if gt_poses else None},
+            "evaluate": {**{k: v for k, v in a(self.evaluation).items() if k != "gt_mesh"},  # reference.ply's
+                         "gt_poses": fingerprint_input(gt_poses) if gt_poses else None},
             "report": a(self.report),
         }[stage]
-        if stage == "depth" and self.depth.mode != "planesweep":
-            options["weights_digest"] = weights_digest(self.depth.weights or DEFAULT_WEIGHTS)
-        return options
 
 
 @dataclass
@@ -180,9 +232,19 @@ class Pipeline:
         write_json_atomic(self.state_path, {"config": dataclasses.asdict(self.config),
                                             "stages": {k: dataclasses.asdict(v) for k, v in self.records.items()}})
 
-    def is_current(self, stage: str) -> bool:
+    def is_current(self, stage: str, fingerprint: str | None = None) -> bool:
         rec = self.records.get(stage)
-        return bool(rec and rec.done and rec.fingerprint == _fingerprint(self.config.stage_options(stage)))
+        fingerprint = fingerprint or _fingerprint(self.config.stage_options(stage))
+        return bool(rec and rec.done and rec.fingerprint == fingerprint)
+
+    def check_folder(self) -> None:
+        """Refuse a run folder whose stage folders are links: a stage empties and refills them, and would
+        write (or delete) wherever a link points instead of inside the run folder."""
+        for name in STAGE_FOLDERS:
+            path = self.out / name
+            if path.is_symlink():
+                raise ReconError(f"{path}: is a link (to {os.readlink(path)}); a run folder's stage folders must be "
+                                 "its own (remove the link)")
 
     # -- driver ------------------------------------------------------------------------------
     def run(self, force: tuple[str, ...] = (), until: str = "report") -> dict:
@@ -191,28 +253,31 @@ class Pipeline:
             if name not in STAGES:
                 raise ReconError(f"unknown stage {name!r} (stages: {', '.join(STAGES)})")
         last = STAGES.index(until)
+        self.config.validate()
+        self.check_folder()
         with RunLock(self.out):
             self._load_state()
             first_forced = min((STAGES.index(f) for f in force), default=len(STAGES))
             redo_rest = False
             for i, stage in enumerate(STAGES[: last + 1]):
-                redo = redo_rest or i >= first_forced or not self.is_current(stage)
+                # Taken before the stage runs: an input that changes meanwhile must not look current next time.
+                fingerprint = _fingerprint(self.config.stage_options(stage))
+                redo = redo_rest or i >= first_forced or not self.is_current(stage, fingerprint)
                 if not redo:
                     log.info("%s: up to date, skipped", stage)
                     continue
                 redo_rest = True  # everything downstream depends on this stage's outputs
-                self._run_stage(stage)
+                self._run_stage(stage, fingerprint)
         report = self.out / "report.json"
         return json.loads(report.read_text()) if report.is_file() and until == "report" else {}
 
-    def _run_stage(self, stage: str) -> None:
+    def _run_stage(self, stage: str, fingerprint: str) -> None:
         self.records.pop(stage, None)
         self._save_state()
         log.info("%s: running", stage)
         with measure() as usage:
             info = getattr(self, f"stage_{stage}")() or {}
-        self.records[stage] = StageRecord(True, _fingerprint(self.config.stage_options(stage)), usage.seconds,
-                                          usage.peak_rss_mb, info)
+        self.records[stage] = StageRecord(True, fingerprint, usage.seconds, usage.peak_rss_mb, info)
         self._save_state()
         log.info("%s: done in %.1f s (peak %.0f MB)", stage, usage.seconds, usage.peak_rss_mb)
 
@@ -282,7 +347,13 @@ class Pipeline:
             raise ReconError("--start is not supported when poses come from SfM (trim the video instead)")
         ingest = dataclasses.replace(self.config.sfm.ingest, stride=self.config.input.stride,
                                      max_frames=self.config.input.max_frames)
-        scan, _ = estimate_poses(src, self.out / "scan", dataclasses.replace(self.config.sfm, ingest=ingest))
+        # SfM works in a folder of its own and replaces scan/ only once it succeeded: a failed attempt keeps
+        # the previous scan (and leaves its diagnostics in the staging folder).
+        staging = self.out / SFM_STAGING
+        remove_path(staging)
+        with naming(src):  # SfM's messages name its working folders; the user needs to hear which input failed
+            scan, _ = estimate_poses(src, staging, dataclasses.replace(self.config.sfm, ingest=ingest))
+        replace_dir(staging, self.out / "scan")
         return scan
 
     def gt_poses_scan(self) -> Scan | None:
@@ -324,49 +395,73 @@ class Pipeline:
                 "depth_range": summary.get("depth_range")}
 
     def stage_fusion(self) -> dict:
+        """The keyframes' depth through the depth filter into the TSDF; the filter's figures go to report.json."""
         scan = self.keyframe_scan()
+        source = filtered_depth(scan, self.out / "depth", self.config.depth_filter, self.config.fusion)
         with self._bar("fusion", len(scan)) as bar:
-            mesh = fuse_scan(scan, self.out / "depth", self.config.fusion, progress=bar)
+            mesh = fuse_scan(scan, source, self.config.fusion, cleanup=self.config.cleanup, progress=bar)
         save_mesh(mesh, self.out / "mesh.ply")
-        return {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
+        return {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
+                "filter": {"checks": list(source.config.checks), **source.stats.as_dict()}}
+
+    def ground_truth_scan(self) -> Scan:
+        """The scan that holds this run's ground truth: its own, or for an SfM run without any, the frames of
+        the ground-truth scan (--gt-poses) that the run kept (matched by name)."""
+        scan = self.load_scan()
+        if scan.has_depth or gt_mesh_path(scan) is not None or not self.poses_from_sfm:
+            return scan
+        gt_scan = self.gt_poses_scan()
+        return frames_named(gt_scan, scan.names) if gt_scan is not None else scan
 
     def stage_reference(self) -> dict:
-        """The GT mesh to score against: --gt-mesh, the scan's own, or the fusion of its GT depth."""
+        """The GT mesh to score against: --gt-mesh, the ground-truth scan's own (`ground_truth_scan`), or the
+        fusion of its GT depth."""
         target = self.out / "reference.ply"
-        scan = self.load_scan()
-        given = Path(self.config.evaluation.gt_mesh) if self.config.evaluation.gt_mesh else gt_mesh_path(scan)
+        truth = self.ground_truth_scan()
+        given = Path(self.config.evaluation.gt_mesh) if self.config.evaluation.gt_mesh else gt_mesh_path(truth)
         if given is not None:
             save_mesh(load_mesh(given), target)
             return {"source": str(given)}
-        if scan.has_depth:
-            with self._bar("reference", len(scan)) as bar:
-                mesh = fuse_scan(scan, "gt", self.config.fusion, progress=bar)
+        if truth.has_depth:
+            with self._bar("reference", len(truth)) as bar:
+                mesh = fuse_scan(truth, "gt", self.config.fusion, progress=bar)
             save_mesh(mesh, target)
             return {"source": "fusion of the ground-truth depth"}
         target.unlink(missing_ok=True)
         return {"source": None}
 
     def stage_evaluate(self) -> dict:
+        """Depth, mesh and pose metrics; an SfM run with ground-truth poses is scored in the ground truth's frame
+        and scale (the Sim(3) of its trajectory onto the GT poses moves the mesh and scales the depth)."""
         scan = self.load_scan()
         metrics: dict = {"metric_scale": scan.metadata.metric_scale}
-        metrics.update(self._depth_metrics(scan))
         gt_scan = self.gt_poses_scan() if self.poses_from_sfm else None
         alignment = None
         if gt_scan is not None:
             p = pose_metrics(scan, gt_scan)
-            metrics["poses"] = {"ate_rmse": p["ate_rmse"], "registered": p["registered"],
-                                "metric_scale": scan.metadata.metric_scale, "sim3_scale": p["scale"]}
+            metrics["poses"] = {"ate_rmse": p["ate_rmse"], "registered": p["registered"],  # of the frames SfM got
+                                "frames_used": p["frames_used"], "metric_scale": scan.metadata.metric_scale,
+                                "sim3_scale": p["scale"]}
             alignment = p["alignment"]
+            gt_scan = frames_named(gt_scan, scan.names)  # what this run saw, for depth and visibility
+        metrics.update(self._depth_metrics(scan, gt_scan, alignment))
         metrics.update(self._mesh_metrics(scan, gt_scan, alignment))
         write_json_atomic(self.out / "metrics.json", metrics)
         return {k: v for k, v in metrics.items() if k in ("depth", "mesh", "poses")}
 
-    def _depth_metrics(self, scan: Scan) -> dict:
-        kf = self.keyframe_scan()
+    def _depth_metrics(self, scan: Scan, gt_scan: Scan | None, alignment: dict | None) -> dict:
+        """Against the run's own GT depth, or (SfM with GT poses) the GT scan's depth of the same keyframes with
+        the prediction scaled by the trajectory's Sim(3) scale."""
+        kf, scale, align = self.keyframe_scan(), 1.0, "none" if scan.metadata.metric_scale else "median"
+        if alignment is not None and gt_scan is not None:
+            gt_kf = frames_named(gt_scan, kf.names)
+            if gt_kf.has_depth:
+                kf, scale, align = gt_kf, float(alignment["scale"]), "sim3"
         if not kf.has_depth:
             return {}
         d = evaluate_depth_folder(self.out / "depth", kf, max_depth=self.config.evaluation.max_depth,
-                                  align="none" if scan.metadata.metric_scale else "median")
+                                  align="median" if align == "median" else "none", scale=scale)
+        d["align"] = align
         return {"depth": {k: d[k] for k in ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3",
                                            "coverage", "frames", "min_depth", "max_depth", "align")},
                 "temporal": {k: d[k] for k in ("mae_mean", "mae_std", "flicker")},
@@ -381,7 +476,7 @@ class Pipeline:
             return {"mesh_skipped": "the mesh's scale is unknown and no ground-truth poses align it "
                                     "(pass --gt-poses SCAN)"}
         out = {}
-        if not scan.metadata.metric_scale:
+        if alignment is not None:  # SfM poses live in their own frame, metric or not
             mesh = aligned_mesh(mesh, alignment)
             out["mesh_alignment"] = "Sim(3) from the camera trajectory to the ground-truth poses"
         out["mesh"] = mesh_metrics(mesh, reference, scan=gt_scan if gt_scan is not None else scan)
@@ -403,6 +498,8 @@ class Pipeline:
         """report.json: the metric sections (absent without their ground truth), timing, memory, config."""
         metrics = json.loads((self.out / "metrics.json").read_text()) if (self.out / "metrics.json").is_file() else {}
         report = {k: metrics[k] for k in ("depth", "temporal", "mesh", "poses") if k in metrics}
+        if "filter" in self.records.get("fusion", StageRecord()).info:
+            report["filter"] = self.records["fusion"].info["filter"]
         report["metric_scale"] = metrics.get("metric_scale")
         report["timing"] = {k: round(v.seconds, 3) for k, v in self.records.items() if v.done}
         report["memory"] = {"peak_rss_mb": round(max((v.peak_rss_mb for v in self.records.values()), default=0.0), 1),
@@ -410,6 +507,12 @@ class Pipeline:
         report["stages"] = {k: v.info for k, v in self.records.items()}
         report["config"] = dataclasses.asdict(self.config)
         return report
+
+
+def frames_named(scan: Scan, names: list[str]) -> Scan:
+    """The frames of `scan` with these names, in the order given (names it lacks are left out)."""
+    index = {f.name: i for i, f in enumerate(scan.frames)}
+    return scan.subset([index[n] for n in names if n in index])
 
 
 def aligned_mesh(mesh_path: Path, alignment: dict):

@@ -1,12 +1,15 @@
-"""report.html: one self-contained page (pictures embedded as data URIs, plots as inline SVG).
+"""report.html: one self-contained page, templated with Jinja2 (`apps/templates/report.html.j2`).
 
-It loads offline and records, in `data-*` attributes of <body>, how many images loaded and
-any script error, so a headless browser can check it.
+plotly.js, which the plotly package ships (MIT), is inlined once and draws the interactive 3D view
+(the mesh decimated for the browser, the camera path and keyframe frustums) and the plots; the
+pictures are PNG data URIs with colour scales in their units. Nothing is fetched: the page's
+Content-Security-Policy refuses any request, and <body> records in data-* attributes how many
+images loaded, whether the 3D view drew (and how much of it is not background), script errors
+and refused fetches, so a headless browser can check it.
 """
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
 from pathlib import Path
@@ -16,7 +19,49 @@ import numpy as np
 
 from recon.io import write_bytes_atomic
 
-PLOT_W, PLOT_H = 560, 220
+TEMPLATE = "report.html.j2"
+MAX_VIEW_FACES = 60_000  # triangles the 3D view gets; a fused room has several hundred thousand
+MAX_FRUSTUMS = 80
+TILE_WIDTH = 320
+COLORMAP = cv2.COLORMAP_TURBO
+
+# Known report figures: key -> (label, what it is, kind); kind says how to print it.
+METRICS = {
+    "abs_rel": ("Abs Rel", "mean |d - d*| / d* over valid pixels", "ratio"),
+    "abs": ("Abs", "mean |d - d*|", "length"),
+    "sq_rel": ("Sq Rel", "mean (d - d*)^2 / d*", "length"),
+    "rmse": ("RMSE", "root mean squared depth error", "length"),
+    "rmse_log": ("RMSE log", "root mean squared error of log depth", "ratio"),
+    "a1": ("δ < 1.25", "share of pixels with max(d/d*, d*/d) < 1.25", "share"),
+    "a2": ("δ < 1.25²", "share of pixels with max(d/d*, d*/d) < 1.5625", "share"),
+    "a3": ("δ < 1.25³", "share of pixels with max(d/d*, d*/d) < 1.953", "share"),
+    "coverage": ("coverage", "share of ground-truth pixels that got a prediction", "share"),
+    "frames": ("frames", "frames scored", "count"),
+    "min_depth": ("range from", "evaluation range start", "length"),
+    "max_depth": ("range to", "evaluation range end", "length"),
+    "align": ("alignment", "none: metric as predicted; median: each map rescaled to the ground truth", "text"),
+    "mae_mean": ("MAE mean", "mean over frames of each frame's mean absolute error", "length"),
+    "mae_std": ("MAE std", "its standard deviation over frames (the paper's temporal figure)", "length"),
+    "flicker": ("flicker", "relative disagreement of consecutive maps reprojected with the poses", "ratio"),
+    "acc": ("accuracy", "mean distance from predicted mesh points to the ground truth", "length"),
+    "comp": ("completeness", "mean distance from ground-truth points to the predicted mesh", "length"),
+    "chamfer": ("chamfer", "mean of accuracy and completeness", "length"),
+    "prec": ("precision", "share of predicted points within 5 cm of the ground truth", "share"),
+    "recall": ("recall", "share of ground-truth points within 5 cm of the prediction", "share"),
+    "fscore": ("F-score", "harmonic mean of precision and recall", "ratio"),
+    "ate_rmse": ("ATE RMSE", "camera-centre error after a Sim(3) alignment", "length"),
+    "ate_median": ("ATE median", "median camera-centre error after the alignment", "length"),
+    "registered": ("registered", "share of ground-truth frames SfM posed", "share"),
+    "sim3_scale": ("Sim(3) scale", "ground-truth metres per SfM unit", "ratio"),
+    "scale": ("Sim(3) scale", "ground-truth metres per SfM unit", "ratio"),
+    "frames_matched": ("frames matched", "frames scored by name", "count"),
+    "trajectory_length": ("path length", "length of the ground-truth camera path", "length"),
+    "pred_points": ("predicted points", "points sampled on the predicted mesh after culling", "count"),
+    "gt_points": ("ground-truth points", "points sampled on the ground truth after culling", "count"),
+    "threshold": ("threshold", "distance under which a point counts as matched", "length"),
+}
+SECTIONS = (("depth", "depth accuracy"), ("temporal", "temporal coherence"), ("mesh", "mesh accuracy"),
+            ("poses", "pose accuracy"))
 
 
 def png_data_uri(rgb: np.ndarray) -> str:
@@ -24,164 +69,355 @@ def png_data_uri(rgb: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode()
 
 
-def colorize(values: np.ndarray, lo: float, hi: float, valid: np.ndarray | None = None) -> np.ndarray:
-    """Float map -> uint8 RGB with a perceptual colormap; invalid pixels black."""
+def colorize(values: np.ndarray, lo: float, hi: float, valid: np.ndarray | None = None,
+             colormap: int = COLORMAP) -> np.ndarray:
+    """Float map -> uint8 RGB with a perceptual colour map; invalid pixels black."""
     norm = np.clip((values - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.cvtColor(cv2.applyColorMap((norm * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    rgb = cv2.cvtColor(cv2.applyColorMap((norm * 255).astype(np.uint8), colormap), cv2.COLOR_BGR2RGB)
     if valid is not None:
         rgb[~valid] = 0
     return rgb
 
 
-def svg_line_plot(series: dict[str, list[float | None]], title: str, y_label: str) -> str:
-    """A small multi-series line plot; None values are gaps."""
-    colors = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd"]
-    vals = [v for s in series.values() for v in s if v is not None and math.isfinite(v)]
-    if not vals:
-        return f"<p>{html.escape(title)}: no data</p>"
-    lo, hi = min(0.0, min(vals)), max(vals) * 1.05 or 1.0
-    n = max(len(s) for s in series.values())
-    pad = 40
-
-    def xy(i, v):
-        x = pad + (PLOT_W - pad - 10) * (i / max(n - 1, 1))
-        y = PLOT_H - pad + (-(PLOT_H - pad - 20)) * ((v - lo) / (hi - lo))
-        return f"{x:.1f},{y:.1f}"
-
-    parts = [f'<svg width="{PLOT_W}" height="{PLOT_H}" xmlns="http://www.w3.org/2000/svg" role="img">',
-             f'<text x="{PLOT_W / 2}" y="14" text-anchor="middle" font-size="13">{html.escape(title)}</text>',
-             f'<line x1="{pad}" y1="{PLOT_H - pad}" x2="{PLOT_W - 10}" y2="{PLOT_H - pad}" stroke="#888"/>',
-             f'<line x1="{pad}" y1="20" x2="{pad}" y2="{PLOT_H - pad}" stroke="#888"/>',
-             f'<text x="4" y="24" font-size="11">{hi:.3g}</text>',
-             f'<text x="4" y="{PLOT_H - pad}" font-size="11">{lo:.3g}</text>',
-             f'<text x="{PLOT_W / 2}" y="{PLOT_H - 8}" text-anchor="middle" font-size="11">keyframe</text>',
-             f'<text x="4" y="{PLOT_H / 2}" font-size="11">{html.escape(y_label)}</text>']
-    for k, (name, s) in enumerate(series.items()):
-        color = colors[k % len(colors)]
-        pts = " ".join(xy(i, v) for i, v in enumerate(s) if v is not None and math.isfinite(v))
-        parts.append(f'<polyline fill="none" stroke="{color}" stroke-width="1.5" points="{pts}"/>')
-        parts.append(f'<text x="{PLOT_W - 150}" y="{34 + 14 * k}" font-size="11" fill="{color}">{html.escape(name)}</text>')
-    parts.append("</svg>")
-    return "".join(parts)
+def color_scale(label: str, lo: float, hi: float, digits: int = 2, colormap: int = COLORMAP) -> dict:
+    """A horizontal colour bar with five ticks for a map drawn by `colorize(…, lo, hi)`."""
+    ramp = colorize(np.linspace(lo, hi, 256, dtype=np.float32)[None, :].repeat(4, 0), lo, hi, colormap=colormap)
+    return {"label": label, "uri": png_data_uri(ramp),
+            "ticks": [f"{v:.{digits}f}" for v in np.linspace(lo, hi, 5)]}
 
 
-def svg_trajectory(centres: np.ndarray, keyframe_mask: np.ndarray, up: np.ndarray) -> str:
-    """Top-down view of the camera path (projected along `up`); keyframes as dots."""
+def format_value(value, kind: str, unit: str) -> str:
+    """A figure as people read it: rounded, with its unit; n/a for a missing one."""
+    if value is None or isinstance(value, float) and not math.isfinite(value):
+        return "n/a"
+    if kind == "share" and isinstance(value, (int, float)):
+        return f"{100 * value:.1f} %"
+    if kind == "length" and isinstance(value, (int, float)):
+        return f"{value:.3f} {unit}"
+    if kind == "count" or isinstance(value, (bool, int)):
+        return str(value)
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
+
+
+def metric_tables(report: dict, unit: str) -> list[dict]:
+    """One table per metric section the run has (depth, temporal, mesh, poses)."""
+    tables = []
+    for key, title in SECTIONS:
+        section = report.get(key)
+        if not isinstance(section, dict):
+            continue
+        rows = []
+        for name, value in section.items():
+            if isinstance(value, (dict, list)) or name == "metric_scale":
+                continue
+            label, help_text, kind = METRICS.get(name, (name, "", "ratio"))
+            rows.append({"label": label, "help": help_text, "value": format_value(value, kind, unit)})
+        tables.append({"title": title, "rows": rows})
+    return tables
+
+
+def _seconds(value: float) -> str:
+    return f"{value:.1f} s" if value < 120 else f"{value / 60:.1f} min"
+
+
+def summary_cards(report: dict, frames: int, keyframes: int, metric: bool, posed: str | None) -> list[dict]:
+    """What a run is, even without ground truth: frames, keyframes, scale, mesh size, time, memory."""
+    stages = report.get("stages", {})
+    cards = [{"label": "frames", "value": frames}, {"label": "keyframes (depth maps)", "value": keyframes},
+             {"label": "scale", "value": "metres" if metric else "SfM units"}]
+    if posed:
+        cards.append({"label": "frames posed by SfM", "value": posed})
+    fusion = stages.get("fusion", {})
+    if "faces" in fusion:
+        cards.append({"label": "mesh triangles", "value": f"{fusion['faces']:,}"})
+        cards.append({"label": "mesh vertices", "value": f"{fusion['vertices']:,}"})
+    depth_filter = report.get("filter")
+    if depth_filter:
+        checks = ", ".join(depth_filter["checks"]) or "range only"
+        cards.append({"label": f"depth filter ({checks})", "value": f"kept {depth_filter['kept_share']:.0%} of the "
+                                                                    f"pixels in {_seconds(depth_filter['seconds'])}"})
+    depth = stages.get("depth", {})
+    if depth.get("seconds_per_frame") is not None:
+        cards.append({"label": f"depth per keyframe ({depth.get('mode', '')})",
+                      "value": _seconds(depth["seconds_per_frame"])})
+    timing = report.get("timing", {})
+    if timing:
+        cards.append({"label": "total time", "value": _seconds(sum(timing.values()))})
+    peak = report.get("memory", {}).get("peak_rss_mb")
+    if peak:
+        cards.append({"label": "peak memory", "value": f"{peak / 1024:.1f} GB" if peak >= 1024 else f"{peak:.0f} MB"})
+    return cards
+
+
+def sfm_section(scan) -> dict | None:
+    """Registered frames, model size, track lengths and reprojection error of an SfM run (None otherwise)."""
+    sfm = scan.metadata.extra.get("sfm")
+    if not sfm:
+        return None
+    ingest = scan.metadata.extra.get("ingest", {})
+    rows = [("mapper", sfm.get("mapper"), "the pycolmap mapper whose model was kept"),
+            ("frames posed", f"{sfm.get('registered')} of {ingest.get('kept', sfm.get('registered'))}",
+             "frames with a pose (of the frames SfM was given)"),
+            ("3D points", sfm.get("points3D"), "triangulated points of the model"),
+            ("mean track length", sfm.get("mean_track_length"), "images that see each point, on average"),
+            ("mean reprojection error", sfm.get("mean_reprojection_error_px"), "pixels, after bundle adjustment"),
+            ("observations per image", sfm.get("mean_observations_per_image"), "points each image sees"),
+            ("camera", (sfm.get("camera") or {}).get("model"), "the shared camera model SfM refined"),
+            ("parallax", sfm.get("parallax"), "median homography parallax of the matched pairs")]
+    return {"rows": [{"label": k, "value": "n/a" if v is None else v, "help": h} for k, v, h in rows],
+            "timings": [(k, _seconds(v)) for k, v in (sfm.get("timings_s") or {}).items()],
+            "unregistered": ", ".join(sfm.get("unregistered") or []),
+            "tracks": track_length_plot(sfm.get("track_length_histogram") or {})}
+
+
+def track_length_plot(histogram: dict[str, int]) -> str | None:
+    """How many 3D points each number of images sees (the last bar: that many or more)."""
+    import plotly.graph_objects as go
+
+    if not histogram:
+        return None
+    last = max(histogram, key=int)
+    labels = [f"{k}+" if k == last and int(k) >= 12 else k for k in histogram]
+    fig = go.Figure(go.Bar(x=labels, y=list(histogram.values()), marker={"color": "#2ca02c"}))
+    fig.update_xaxes(title_text="images seeing the point (track length)", type="category")
+    fig.update_yaxes(title_text="3D points")
+    fig.update_layout(height=260, width=520, margin={"l": 60, "r": 10, "t": 36, "b": 50},
+                      title={"text": "track lengths", "x": 0})
+    return _plot_html(fig)
+
+
+def decimated(mesh, max_faces: int = MAX_VIEW_FACES):
+    """The mesh with at most `max_faces` triangles (quadric decimation; vertex colours kept), as trimesh."""
+    if len(mesh.faces) <= max_faces:
+        return mesh
+    import open3d as o3d
+    import trimesh
+
+    o3 = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
+                                   o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)))
+    o3.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.visual.vertex_colors)[:, :3] / 255.0)
+    small = o3.simplify_quadric_decimation(target_number_of_triangles=max_faces)
+    colors = np.clip(np.asarray(small.vertex_colors) * 255, 0, 255).astype(np.uint8)
+    return trimesh.Trimesh(np.asarray(small.vertices), np.asarray(small.triangles), vertex_colors=colors,
+                           process=False)
+
+
+def frustum_lines(poses: np.ndarray, intrinsics, size: float) -> np.ndarray:
+    """Line segments (NaN-separated points) of a pyramid per camera: apex to the image corners at `size`."""
+    K_inv = np.linalg.inv(intrinsics.K)
+    w, h = intrinsics.width, intrinsics.height
+    corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], float) @ K_inv.T
+    corners *= size / corners[:, 2:3]
+    order = [0, 1, 2, 3, 0]
+    gap = np.full((1, 3), np.nan)
+    parts = []
+    for pose in poses:
+        world = corners @ pose[:3, :3].T + pose[:3, 3]
+        apex = pose[:3, 3][None]
+        parts += [world[order], gap]
+        for c in world:
+            parts += [apex, c[None], gap]
+    return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+
+def view3d_figure(mesh, scan, key_mask: np.ndarray, up: np.ndarray, unit: str) -> str:
+    """The plotly figure (JSON) of the 3D view: the vertex-coloured mesh, the camera path, keyframe frustums."""
+    import plotly.graph_objects as go
+
+    poses = scan.camera_to_world
+    centres = poses[:, :3, 3]
+    traces = []
+    if mesh is not None and len(mesh.faces):
+        v, f = np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)
+        colors = np.asarray(mesh.visual.vertex_colors)[:, :3]
+        traces.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name="mesh",
+                                vertexcolor=[f"rgb({r},{g},{b})" for r, g, b in colors], showlegend=True,
+                                flatshading=False, hoverinfo="skip",
+                                lighting={"ambient": 0.65, "diffuse": 0.5, "specular": 0.05, "roughness": 0.9}))
+        extent = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
+    else:
+        extent = float(np.linalg.norm(np.ptp(centres, axis=0))) or 1.0
+    keys = np.flatnonzero(key_mask)[:: max(1, int(np.ceil(key_mask.sum() / MAX_FRUSTUMS)))]
+    lines = frustum_lines(poses[keys], scan.intrinsics, 0.04 * extent)
+    traces.append(go.Scatter3d(x=centres[:, 0], y=centres[:, 1], z=centres[:, 2], mode="lines", name="camera path",
+                               line={"color": "#1f77b4", "width": 4}, hoverinfo="skip"))
+    traces.append(go.Scatter3d(x=lines[:, 0], y=lines[:, 1], z=lines[:, 2], mode="lines", name="keyframe cameras",
+                               line={"color": "#d62728", "width": 2}, hoverinfo="skip"))
+    traces.append(go.Scatter3d(x=centres[key_mask, 0], y=centres[key_mask, 1], z=centres[key_mask, 2],
+                               mode="markers", name="keyframes", marker={"size": 3, "color": "#d62728"},
+                               text=[f.name for f, k in zip(scan.frames, key_mask) if k], hoverinfo="text"))
     up = up / np.linalg.norm(up)
-    a = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 0, 1.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(up, a)
-    xy = np.stack([centres @ a, centres @ b], 1)
-    lo, hi = xy.min(0), xy.max(0)
-    span = max((hi - lo).max(), 1e-6)
-    size, pad = 320, 20
-    pts = pad + (xy - lo) / span * (size - 2 * pad)
-    path = " ".join(f"{x:.1f},{y:.1f}" for x, y in pts)
-    dots = "".join(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.5" fill="#d62728"/>' for x, y in pts[keyframe_mask])
-    return (f'<svg width="{size}" height="{size}" xmlns="http://www.w3.org/2000/svg" role="img">'
-            f'<rect width="{size}" height="{size}" fill="#fafafa" stroke="#ccc"/>'
-            f'<polyline fill="none" stroke="#1f77b4" stroke-width="1.5" points="{path}"/>{dots}'
-            f'<circle cx="{pts[0, 0]:.1f}" cy="{pts[0, 1]:.1f}" r="5" fill="none" stroke="#2ca02c" stroke-width="2"/>'
-            f'<text x="6" y="{size - 6}" font-size="11">{span:.2f} units across; green: start, red: keyframes</text></svg>')
+    eye = 0.9 * up + 1.5 * _behind_cameras(poses, up)  # looking the way the cameras look, from above them
+    axis = {"title": {"text": ""}, "showbackground": False, "gridcolor": "#e5e5e5", "zeroline": False}
+    layout = go.Layout(
+        margin={"l": 0, "r": 0, "t": 0, "b": 0}, legend={"x": 0.01, "y": 0.99, "bgcolor": "rgba(255,255,255,0.7)"},
+        paper_bgcolor="white", scene={
+            "aspectmode": "data", "xaxis": {**axis, "title": {"text": f"x ({unit})"}},
+            "yaxis": {**axis, "title": {"text": f"y ({unit})"}}, "zaxis": {**axis, "title": {"text": f"z ({unit})"}},
+            "camera": {"up": dict(zip("xyz", map(float, up))), "eye": dict(zip("xyz", map(float, eye)))}})
+    return go.Figure(traces, layout).to_json(validate=False)
 
 
-def svg_bars(values: dict[str, float], title: str, unit: str) -> str:
-    if not values:
-        return ""
-    top = max(values.values()) or 1.0
-    rows = []
-    for k, (name, v) in enumerate(values.items()):
-        w = 300 * v / top
-        y = 24 + 22 * k
-        rows.append(f'<text x="4" y="{y + 12}" font-size="12">{html.escape(name)}</text>'
-                    f'<rect x="90" y="{y}" width="{w:.1f}" height="15" fill="#1f77b4"/>'
-                    f'<text x="{96 + w:.1f}" y="{y + 12}" font-size="11">{v:.2f} {unit}</text>')
-    height = 30 + 22 * len(values)
-    return (f'<svg width="{PLOT_W}" height="{height}" xmlns="http://www.w3.org/2000/svg" role="img">'
-            f'<text x="4" y="14" font-size="13">{html.escape(title)}</text>{"".join(rows)}</svg>')
+def _behind_cameras(poses: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The horizontal unit direction opposite to where the cameras look on average."""
+    forward = poses[:, :3, 2].mean(0)
+    back = -(forward - (forward @ up) * up)
+    if np.linalg.norm(back) < 1e-6:  # cameras looking straight down (or all ways): any horizontal direction
+        back = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+    return back / np.linalg.norm(back)
 
 
-def _table(section: dict) -> str:
-    cells = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{_fmt(v)}</td></tr>" for k, v in section.items()
-                    if not isinstance(v, (dict, list)))
-    return f"<table>{cells}</table>"
+def _plot_html(fig) -> str:
+    import plotly.io as pio
+
+    return pio.to_html(fig, full_html=False, include_plotlyjs=False, config={"displaylogo": False, "responsive": True})
 
 
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return "n/a" if not math.isfinite(v) else f"{v:.4f}"
-    return html.escape(str(v))
+def per_frame_plot(rows: list[dict]) -> str | None:
+    """Abs Rel and flicker per keyframe, on two y axes with ticks and labels."""
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    if not rows:
+        return None
+    names = [r["name"] for r in rows]
+    fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.08,
+                        subplot_titles=("Abs Rel per keyframe (lower is better)",
+                                        "flicker with the previous keyframe (relative disagreement)"))
+    fig.add_trace(go.Scatter(x=names, y=[r.get("abs_rel") for r in rows], mode="lines+markers", name="Abs Rel"), 1, 1)
+    fig.add_trace(go.Scatter(x=names, y=[r.get("flicker") for r in rows], mode="lines+markers", name="flicker",
+                             line={"color": "#d62728"}), 2, 1)
+    fig.update_yaxes(title_text="Abs Rel", rangemode="tozero", row=1, col=1)
+    fig.update_yaxes(title_text="flicker", rangemode="tozero", row=2, col=1)
+    fig.update_xaxes(title_text="keyframe", type="category", row=2, col=1)
+    fig.update_layout(height=460, margin={"l": 70, "r": 20, "t": 40, "b": 60}, showlegend=False,
+                      title={"text": "Per-frame error and flicker", "x": 0})
+    return _plot_html(fig)
 
 
-def depth_panels(pipeline, count: int) -> list[tuple[str, str]]:
-    """(frame name, data URI) of image | predicted depth | GT depth | abs error, for sampled keyframes."""
-    from recon.io import load_depth_map
+def timing_plot(report: dict) -> str | None:
+    """Wall time and peak memory per stage, as horizontal bars with their values."""
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    timing = report.get("timing", {})
+    if not timing:
+        return None
+    stages = list(timing)
+    memory = report.get("memory", {}).get("per_stage_mb", {})
+    fig = make_subplots(rows=1, cols=2, shared_yaxes=True, horizontal_spacing=0.06,
+                        subplot_titles=("wall time per stage", "peak memory (RSS) per stage"))
+    fig.add_trace(go.Bar(y=stages, x=[timing[s] for s in stages], orientation="h", name="time",
+                         text=[_seconds(timing[s]) for s in stages], textposition="auto"), 1, 1)
+    fig.add_trace(go.Bar(y=stages, x=[memory.get(s, 0) for s in stages], orientation="h", name="memory",
+                         marker={"color": "#9467bd"}, text=[f"{memory.get(s, 0):.0f} MB" for s in stages],
+                         textposition="auto"), 1, 2)
+    fig.update_xaxes(title_text="seconds", row=1, col=1)
+    fig.update_xaxes(title_text="MB", row=1, col=2)
+    fig.update_yaxes(autorange="reversed")
+    fig.update_layout(height=80 + 34 * len(stages), margin={"l": 90, "r": 20, "t": 40, "b": 50}, showlegend=False,
+                      title={"text": "Stage timings and memory", "x": 0})
+    return _plot_html(fig)
+
+
+def _picks(n: int, count: int) -> np.ndarray:
+    return np.unique(np.linspace(0, n - 1, min(count, n)).round().astype(int))
+
+
+def _tile(rgb: np.ndarray, width: int = TILE_WIDTH) -> str:
+    h, w = rgb.shape[:2]
+    return png_data_uri(cv2.resize(rgb, (width, max(1, round(width * h / w))), interpolation=cv2.INTER_NEAREST))
+
+
+def depth_rows(pipeline, count: int, unit: str) -> tuple[list[dict], list[dict], list[str]]:
+    """Sampled keyframes as tiles (image, prediction, GT and error when metric GT exists, confidence),
+    the colour scales they share, and the column names."""
+    from recon.io import load_confidence_map, load_depth_map
 
     scan = pipeline.keyframe_scan()
-    picks = np.unique(np.linspace(0, len(scan) - 1, min(count, len(scan))).round().astype(int))
-    out = []
-    for i in picks:
-        rgb = scan.image(i)
-        pred = load_depth_map(pipeline.out / "depth", scan.frames[i].name)
-        h, w = rgb.shape[:2]
-        if pred.shape != (h, w):
-            pred = cv2.resize(pred, (w, h), interpolation=cv2.INTER_NEAREST)
-        gt = scan.depth(i)
-        ref = gt if gt is not None and (gt > 0).any() else pred
-        lo, hi = np.percentile(ref[ref > 0], [2, 98]) if (ref > 0).any() else (0.0, 1.0)
-        tiles = [rgb, colorize(pred, lo, hi, pred > 0)]
-        if gt is not None:
-            valid = (gt > 0) & (pred > 0)
-            tiles += [colorize(gt, lo, hi, gt > 0), colorize(np.abs(pred - gt), 0, 0.25 * hi, valid)]
-        strip = np.concatenate([cv2.resize(t, (240, int(240 * h / w))) for t in tiles], 1)
-        out.append((scan.frames[i].name, png_data_uri(strip)))
-    return out
+    folder = pipeline.out / "depth"
+    frames = []
+    for i in _picks(len(scan), count):
+        name = scan.frames[i].name
+        gt = scan.depth(i) if scan.metadata.metric_scale else None
+        frames.append((name, scan.image(i), load_depth_map(folder, name), load_confidence_map(folder, name),
+                       gt if gt is not None and (gt > 0).any() else None))
+    with_gt = any(f[4] is not None for f in frames)
+    with_conf = any(f[3] is not None for f in frames)
+    ref = np.concatenate([(f[4] if f[4] is not None else f[2]).ravel() for f in frames])
+    lo, hi = np.percentile(ref[ref > 0], [2, 98]) if (ref > 0).any() else (0.0, 1.0)
+    errors = [np.abs(_on_grid(f[2], f[4]) - f[4])[(f[4] > 0) & (_on_grid(f[2], f[4]) > 0)] for f in frames if
+              f[4] is not None]
+    err_hi = max(float(np.percentile(np.concatenate(errors), 95)), 1e-3) if errors and sum(map(len, errors)) else 1.0
+    rows = []
+    for name, rgb, pred, conf, gt in frames:
+        tiles = [{"label": "image", "uri": _tile(rgb)}, {"label": f"predicted depth ({unit})",
+                                                         "uri": _tile(colorize(pred, lo, hi, pred > 0))}]
+        if with_gt:
+            tiles.append({"label": f"ground truth ({unit})",
+                          "uri": _tile(colorize(gt, lo, hi, gt > 0)) if gt is not None else _tile(rgb * 0)})
+            if gt is not None:
+                p = _on_grid(pred, gt)
+                tiles.append({"label": f"|error| ({unit})", "uri": _tile(colorize(np.abs(p - gt), 0, err_hi,
+                                                                                    (gt > 0) & (p > 0)))})
+        if with_conf:
+            tiles.append({"label": "confidence", "uri": _tile(colorize(conf, 0, 1, colormap=cv2.COLORMAP_VIRIDIS))
+                          if conf is not None else _tile(rgb * 0)})
+        rows.append({"name": name, "tiles": tiles})
+    scales = [color_scale(f"depth ({unit}); black: no depth", lo, hi)]
+    if with_gt:
+        scales.append(color_scale(f"absolute error ({unit}), 95th percentile and above at the top", 0.0, err_hi, 3))
+    if with_conf:
+        scales.append(color_scale("confidence (0-1) of the prediction", 0.0, 1.0, colormap=cv2.COLORMAP_VIRIDIS))
+    return rows, scales, [t["label"] for t in rows[0]["tiles"]] if rows else []
+
+
+def _on_grid(pred: np.ndarray, gt: np.ndarray | None) -> np.ndarray:
+    """The prediction resampled (nearest) onto the ground truth's grid, as the evaluation does."""
+    if gt is None or pred.shape == gt.shape:
+        return pred
+    return cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def write_report(pipeline, report: dict, path: Path) -> None:
     """Render the run's report page from report.json's content and the run folder's files."""
+    import jinja2
+    from plotly.offline import get_plotlyjs
+
     from fusion.mesh import load_mesh
     from fusion.render import preview_views
 
     scan = pipeline.load_scan()
-    poses = scan.camera_to_world
-    up = -poses[:, :3, 1].mean(0)  # cameras are held upright: their image-down axis points at the floor
+    metric = bool(scan.metadata.metric_scale)
+    unit = "m" if metric else "units"
+    up = -scan.camera_to_world[:, :3, 1].mean(0)  # cameras are held upright: their image-down axis points at the floor
     keys = set(pipeline.keyframe_names())
     key_mask = np.array([f.name in keys for f in scan.frames])
-    body = [f"<h1>Reconstruction report</h1><p>Input <code>{html.escape(pipeline.config.input.path)}</code>, "
-            f"{len(scan)} frames, {key_mask.sum()} keyframes, depth mode <b>{html.escape(pipeline.config.depth.mode)}</b>. "
-            f"Scale: <b>{'metric (metres)' if report.get('metric_scale') else 'unknown (arbitrary units)'}</b>.</p>"]
-    body.append("<h2>Summary</h2><div class='row'>")
-    for name in ("depth", "temporal", "mesh", "poses"):
-        if name in report:
-            body.append(f"<div><h3>{name}</h3>{_table(report[name])}</div>")
-    body.append(f"<div><h3>memory</h3>{_table({'peak_rss_mb': report['memory']['peak_rss_mb']})}</div></div>")
-    body.append("<h2>Camera path (top-down)</h2>" + svg_trajectory(poses[:, :3, 3], key_mask, up))
-    metrics_path = pipeline.out / "metrics.json"
-    per_frame = json.loads(metrics_path.read_text()).get("depth_per_frame", []) if metrics_path.is_file() else []
-    if per_frame:
-        body.append("<h2>Per-frame error and flicker</h2>")
-        body.append(svg_line_plot({"abs rel": [r["abs_rel"] for r in per_frame]}, "Abs Rel per keyframe", "abs rel"))
-        body.append(svg_line_plot({"flicker": [r["flicker"] for r in per_frame]},
-                                  "Flicker with the previous keyframe", "rel. disagreement"))
-    body.append("<h2>Depth</h2><p>image | predicted depth | ground truth | absolute error (when GT exists)</p>")
-    for name, uri in depth_panels(pipeline, pipeline.config.report.frames):
-        body.append(f"<figure><img src='{uri}' alt='depth of frame {html.escape(name)}'>"
-                    f"<figcaption>frame {html.escape(name)}</figcaption></figure>")
     mesh_path = pipeline.out / "mesh.ply"
-    if mesh_path.is_file():
-        body.append("<h2>Mesh</h2><div class='row'>")
-        for label, img in preview_views(load_mesh(mesh_path), up):
-            body.append(f"<figure><img src='{png_data_uri(img)}' alt='mesh {label}'><figcaption>{label}</figcaption></figure>")
-        body.append("</div>")
-    body.append("<h2>Stage timings</h2>" + svg_bars(report.get("timing", {}), "wall time per stage", "s"))
-    body.append(f"<h2>Configuration</h2><pre>{html.escape(json.dumps(report.get('config', {}), indent=1))}</pre>")
-    page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Reconstruction report</title>
-<style>body{{font-family:sans-serif;margin:24px;max-width:1200px}} table{{border-collapse:collapse;margin:4px}}
-th,td{{border:1px solid #ddd;padding:2px 8px;text-align:left;font-size:13px}} .row{{display:flex;flex-wrap:wrap;gap:16px}}
-figure{{margin:6px}} img{{max-width:100%}} pre{{background:#f6f6f6;padding:8px;font-size:12px}}</style>
-<script>window.addEventListener('error',function(e){{document.body.dataset.errors=(document.body.dataset.errors||'')+e.message+';'}});
-window.addEventListener('load',function(){{var imgs=[].slice.call(document.images);
-document.body.dataset.images=imgs.length;document.body.dataset.imagesLoaded=imgs.filter(function(i){{return i.complete&&i.naturalWidth>0}}).length;}});</script>
-</head><body>{''.join(body)}</body></html>"""
+    mesh = load_mesh(mesh_path) if mesh_path.is_file() else None
+    view_mesh = decimated(mesh) if mesh is not None else None
+    metrics_path = pipeline.out / "metrics.json"
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
+    sfm = sfm_section(scan)
+    posed = next((r["value"] for r in sfm["rows"] if r["label"] == "frames posed"), None) if sfm else None
+    rows, scales, columns = depth_rows(pipeline, pipeline.config.report.frames, unit)
+    notes = [metrics[k] for k in ("mesh_skipped", "mesh_alignment") if isinstance(metrics.get(k), str)]
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(Path(__file__).parent / "templates"),
+                             autoescape=True, undefined=jinja2.StrictUndefined)
+    page = env.get_template(TEMPLATE).render(
+        title=Path(pipeline.config.input.path).name or pipeline.config.input.path, input=pipeline.config.input.path,
+        frames=len(scan), keyframes=int(key_mask.sum()), depth_mode=pipeline.config.depth.mode, metric=metric,
+        pose_source="from SfM (pycolmap)" if pipeline.poses_from_sfm else
+        f"supplied by the input ({scan.metadata.source_format or 'canonical'})",
+        cards=summary_cards(report, len(scan), int(key_mask.sum()), metric, posed),
+        tables=metric_tables(report, unit), notes=notes, sfm=sfm, plotly_js=get_plotlyjs(),
+        view3d_json=view3d_figure(view_mesh, scan, key_mask, up, unit).replace("</", "<\\/"),
+        view_faces=len(view_mesh.faces) if view_mesh is not None else 0,
+        mesh_faces=len(mesh.faces) if mesh is not None else 0,
+        plots=[p for p in (per_frame_plot(metrics.get("depth_per_frame", [])), timing_plot(report)) if p],
+        depth_rows=rows, depth_scales=scales, depth_columns=max(len(columns), 1),
+        depth_caption="Each row is a keyframe: " + " | ".join(columns) + ".",
+        renders=[(label, png_data_uri(img)) for label, img in preview_views(mesh, up)] if mesh is not None and len(
+            mesh.faces) else [],
+        config=json.dumps(report.get("config", {}), indent=1))
     write_bytes_atomic(path, page.encode())

@@ -7,13 +7,15 @@ back as float32. Loading checks the file is ours, readable and of the expected c
 from __future__ import annotations
 
 import os
+import pickle
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from recon.errors import ReconError
+from recon.errors import ReconError, naming
 from recon.io import atomic_path
 
 from .config import CONFIGS, ESTConfig
@@ -82,13 +84,20 @@ def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None 
     path = resolve_weights(name_or_path)
     try:
         doc = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise ReconError(f"{path}: unreadable depth checkpoint ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # torch's messages run to several lines, and advise the unsafe weights_only=False
+        pickled_objects = isinstance(exc, pickle.UnpicklingError) and zipfile.is_zipfile(path)
+        what = ("empty file" if path.stat().st_size == 0 else
+                "it holds more than tensors, and is not unpickled for safety" if pickled_objects
+                else "truncated, damaged or not a torch file")
+        raise ReconError(f"{path}: unreadable depth checkpoint ({what})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ReconError(f"{path}: not a depth network checkpoint (no '{FORMAT}' header)")
     if doc.get("version") != VERSION:
         raise ReconError(f"{path}: unsupported checkpoint version {doc.get('version')!r}")
-    config = ESTConfig.from_dict(doc["config"])
+    if not isinstance(doc.get("config"), dict) or not isinstance(doc.get("state_dict"), dict):
+        raise ReconError(f"{path}: damaged depth checkpoint (no network config or tensors)")
+    with naming(path):
+        config = ESTConfig.from_dict(doc["config"])
     if expected is not None and config != expected:
         diff = [k for k, v in config.to_dict().items() if expected.to_dict()[k] != v]
         raise ReconError(f"{path}: checkpoint is for depth config {config.name!r}, expected {expected.name!r} "

@@ -113,7 +113,7 @@ COMPACT = ESTConfig(
     refine_channels=(16, 8),
 )
 
-# The default from v2 on (docs/depth.md, "The lite configuration"): an ImageNet-pretrained
+# The default from v2 on (docs/depth.md, "`lite`"): an ImageNet-pretrained
 # EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata; EST parts as in compact.
 LITE = COMPACT.replace(
     name="lite", num_planes=64, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,

@@ -13,6 +13,7 @@ scan's size; with `crop`, pixels outside the window get depth 0 (invalid) and co
 from __future__ import annotations
 
 import collections
+import logging
 import os
 from typing import Callable, Iterator
 
@@ -26,8 +27,11 @@ from .checkpoint import build_model, load_checkpoint
 from .config import get_config
 from .device import resolve_device
 from .model import ESTNet, MemoryEntry, TargetOutput, TargetState
-from .options import NETWORK_MODES, DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range
-from .views import image_tensor, network_view, to_scan_pixels
+from .options import (NETWORK_MODES, DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range,
+                      stored_size)
+from .views import describe_view, image_tensor, network_view, to_scan_pixels, view_message
+
+log = logging.getLogger(__name__)
 
 
 class TemporalMemory:
@@ -61,6 +65,8 @@ class _Pass:
         self.scan, self.device = scan, device
         self.sources = frame_sources(scan, opts.sources)
         self.net_scan = network_view(scan, cfg.image_width, cfg.image_height, opts.fit)
+        log.info("%s", view_message(describe_view(scan.intrinsics.size, cfg.image_width, cfg.image_height, opts.fit)))
+        self.output_size = stored_size(scan.intrinsics.size, (cfg.image_width, cfg.image_height), opts.full_resolution)
         self.K = torch.from_numpy(self.net_scan.intrinsics.K).float()[None].to(device)
         self.depth_range = torch.tensor([scan_depth_range(scan, opts.depth_range)], device=device)
         self.features, self.prepare_call, self.finish_call = estimator.network_calls(opts.compile)
@@ -99,7 +105,7 @@ class _Pass:
             return self.finish_call(state, memories)
 
     def result(self, i: int, out: TargetOutput) -> FrameDepth:
-        view = (self.net_scan, self.scan.intrinsics.size)
+        view = (self.net_scan, self.output_size)
         d = to_scan_pixels(out.depths[3], *view)[0, 0].cpu().numpy()
         conf = to_scan_pixels(out.confidence, *view)[0, 0].cpu().numpy()
         if not np.all(np.isfinite(d)):

@@ -20,6 +20,7 @@ from .estimator import DepthEstimator, TemporalMemory
 from .options import DepthOptions, frame_sources, scan_depth_range
 from .planesweep import run_planesweep
 from .store import DepthStore
+from .views import describe_view
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +31,7 @@ def _settings(scan: Scan, opts: DepthOptions, config_name: str | None) -> dict:
     return {"mode": opts.mode, "depth_range": list(scan_depth_range(scan, opts.depth_range)),
             "memory_size": opts.memory_size, "sources": asdict(opts.sources), "joint_group": opts.joint_group,
             "precision": opts.precision, "fit": opts.fit if learned else None, "config": config_name,
+            "full_resolution": opts.full_resolution,
             "weights": str(opts.weights) if learned and opts.weights else None,
             "weights_digest": weights_digest(opts.weights) if learned else None,
             "planesweep": asdict(opts.planesweep) if not learned else None, "names": scan.names}
@@ -50,7 +52,7 @@ def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple
 def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = DepthOptions(),
                    estimator: DepthEstimator | None = None, progress: Callable[[int, int], None] | None = None,
                    resume: bool = False) -> dict:
-    """Run the depth stage over `scan`, writing `<name>.npy/.png/.conf.npy` and `depth.json` to `out_dir`.
+    """Run the depth stage over `scan`, writing `<name>.png/.conf.png` and `depth.json` to `out_dir`.
 
     Learned modes load `opts.weights` (a shipped name or checkpoint path; default the shipped
     weights) unless a ready `estimator` is given. With `resume`, a finished run with the same
@@ -89,6 +91,9 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     summary = {**{k: v for k, v in store.settings.items() if k != "names"}, "settings": store.settings,
                "frames": frames, "skipped": [n for n in scan.names if n not in {f["name"] for f in frames}],
                "seconds": seconds, "seconds_per_frame": seconds / max(len(frames) - len(skip), 1)}
+    if estimator is not None:  # the network's input: its size turned to the frames' orientation, the fit's effect
+        cfg = estimator.config
+        summary["view"] = describe_view(scan.intrinsics.size, cfg.image_width, cfg.image_height, opts.fit)
     store.finish(summary)
     log.info("depth: %d frames in %.1f s (%s)", len(frames), seconds, opts.mode)
     return summary

@@ -80,12 +80,13 @@ def summarise(per_frame: list[dict[str, float]], flickers: list[float]) -> dict[
 
 
 def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: float = 10.0,
-                          align: str = "none", progress=None) -> dict[str, float]:
+                          align: str = "none", progress=None, scale: float = 1.0) -> dict[str, float]:
     """Score a folder of predicted maps (`<frame name>.npy|.png`) against a scan's GT depth.
 
-    Predictions of another size are resampled (nearest) onto the GT grid. `align='median'`
-    rescales each prediction by median(gt)/median(pred), for non-metric predictions; the
-    result then says so. Temporal keys come from consecutive frames of the scan;
+    Predictions of another size are resampled (nearest) onto the GT grid. `scale` multiplies every
+    prediction first (an SfM run's depth into the GT's units: the Sim(3) scale of its trajectory).
+    `align='median'` rescales each prediction by median(gt)/median(pred), for non-metric predictions;
+    the result then says so. Temporal keys come from consecutive frames of the scan;
     `per_frame` lists each frame's abs_rel, abs and flicker (with the previous frame).
     """
     import cv2
@@ -104,6 +105,8 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
         pred = load_depth_map(pred_dir, scan.frames[i].name)
         if pred.shape != gt.shape:
             pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
+        if scale != 1.0:
+            pred = pred * np.float32(scale)
         if align == "median":
             pred = pred * median_scale(pred, gt)
         m = depth_metrics(pred, gt, min_depth, max_depth)

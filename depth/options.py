@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from recon.errors import ReconError
+from recon.errors import ReconError, naming
+from recon.io import working_size
 from recon.keyframes import SourceConfig, select_sources
 from recon.scan import Scan
 
@@ -40,12 +41,12 @@ class PlaneSweepOptions:
 
 @dataclass
 class FrameDepth:
-    """One frame's result at the scan's resolution."""
+    """One frame's result on its stored grid (`stored_size`: the scan's aspect, the working resolution)."""
 
     index: int
     name: str
-    depth: np.ndarray  # (H, W) float32 metres, 0 = invalid
-    confidence: np.ndarray  # (H, W) float32 in [0, 1]
+    depth: np.ndarray  # (h, w) float32 metres, 0 = invalid
+    confidence: np.ndarray  # (h, w) float32 in [0, 1]
     sources: list[int]
 
 
@@ -64,6 +65,7 @@ class DepthOptions:
     precision: str = "fp32"  # "bf16": autocast the network to bfloat16 (CUDA, and CPUs with bf16 units)
     fit: str = "stretch"  # "stretch" the frame to the network size, or "crop" it (aspect kept, borders lost)
     compile: bool = False  # torch.compile the network (a one-off compile of about a minute, then faster frames)
+    full_resolution: bool = False  # store maps at the scan's resolution instead of the working one (`stored_size`)
     planesweep: PlaneSweepOptions = field(default_factory=PlaneSweepOptions)
 
     def validate(self) -> "DepthOptions":
@@ -75,9 +77,19 @@ class DepthOptions:
         if self.memory_size is not None and self.memory_size < 0:
             raise ReconError(f"--memory must be >= 0, got {self.memory_size}")
         if self.depth_range is not None:
-            check_depth_range(self.depth_range)
+            with naming("--depth-range"):
+                check_depth_range(self.depth_range)
         self.sources.validate()
         return self
+
+
+def stored_size(scan_size: tuple[int, int], work_size: tuple[int, int], full_resolution: bool = False
+                ) -> tuple[int, int]:
+    """(w, h) of the grid a frame's depth is stored on: the scan's own with `full_resolution`, else the scan's
+    aspect ratio with the long side of the working size (the network's or the sweep's). Upsampling adds no
+    information, and a full-resolution float map per frame outweighs the input many times over."""
+    width, height = scan_size
+    return (width, height) if full_resolution else working_size(width, height, max(work_size))
 
 
 def check_depth_range(rng) -> tuple[float, float]:

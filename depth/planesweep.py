@@ -22,7 +22,8 @@ from recon.scan import Scan
 
 from .device import resolve_device
 from .geometry import depth_at_index, depth_planes, plane_sweep_warp
-from .options import DepthOptions, FrameDepth, PlaneSweepOptions, check_scan, frame_sources, scan_depth_range
+from .options import (DepthOptions, FrameDepth, PlaneSweepOptions, check_scan, frame_sources, scan_depth_range,
+                      stored_size)
 from .views import image_tensor
 
 
@@ -109,6 +110,7 @@ def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),
     width = min(opts.planesweep.width, intr.width)
     height = max(8, int(round(intr.height * width / intr.width)))
     work = scan.resized(width, height)
+    out_w, out_h = stored_size(intr.size, (width, height), opts.full_resolution)
     device = resolve_device(opts.device)
     K = torch.from_numpy(work.intrinsics.K).float().to(device)
     poses = torch.from_numpy(scan.camera_to_world).float().to(device)
@@ -126,7 +128,7 @@ def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),
             continue
         depth, conf = plane_sweep_depth(gray(i), torch.stack([gray(j) for j in srcs]), K, poses[i], poses[srcs],
                                         (lo, hi), opts.planesweep)
-        size = (intr.height, intr.width)
-        depth = F.interpolate(depth[None, None], size, mode="nearest")[0, 0]
-        conf = F.interpolate(conf[None, None], size, mode="nearest")[0, 0]
+        if (out_h, out_w) != tuple(depth.shape):
+            depth = F.interpolate(depth[None, None], (out_h, out_w), mode="nearest")[0, 0]
+            conf = F.interpolate(conf[None, None], (out_h, out_w), mode="nearest")[0, 0]
         yield FrameDepth(i, scan.frames[i].name, depth.cpu().numpy(), conf.cpu().numpy(), list(srcs))

@@ -1,6 +1,6 @@
 """The depth folder of a run, and how an interrupted depth stage resumes.
 
-    <name>.npy / .png / .conf.npy   one frame's depth (+ confidence), written atomically
+    <name>.png / .conf.png          one frame's depth (mm) and confidence, written atomically, confidence last
     depth.json                      the summary, written last: the stage is complete
     depth.partial.json              the settings of an unfinished run
     .estm-memory/<name>.pt          the last N ESTM memory entries of an unfinished run
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from recon.io import atomic_path, remove_path, save_depth_map, write_json_atomic
+from recon.io import CONFIDENCE_SUFFIX, DEPTH_SUFFIX, atomic_path, remove_path, save_depth_map, write_json_atomic
 
 from .estimator import TemporalMemory
 from .model import MemoryEntry
@@ -45,7 +45,7 @@ class DepthStore:
         """The summary of a finished run with these settings whose maps all exist, else None."""
         previous = _read_json(self.folder / SUMMARY)
         if previous and previous.get("settings") == self.settings and all(
-                (self.folder / f"{f['name']}.npy").is_file() for f in previous["frames"]):
+                (self.folder / f"{f['name']}{DEPTH_SUFFIX}").is_file() for f in previous["frames"]):
             return previous
         return None
 
@@ -57,7 +57,7 @@ class DepthStore:
         """Indices of frames an unfinished run with these settings wrote (none otherwise)."""
         if not self._unfinished():
             return frozenset()
-        return frozenset(i for i, n in enumerate(names) if (self.folder / f"{n}.conf.npy").is_file())
+        return frozenset(i for i, n in enumerate(names) if (self.folder / f"{n}{CONFIDENCE_SUFFIX}").is_file())
 
     def finished_prefix(self, names: list[str], order: list[int], memory_size: int, device: torch.device
                         ) -> tuple[frozenset[int], TemporalMemory]:
@@ -68,7 +68,7 @@ class DepthStore:
             return frozenset(), memory
         done = []
         for i in order:
-            if not (self.folder / f"{names[i]}.conf.npy").is_file():
+            if not (self.folder / f"{names[i]}{CONFIDENCE_SUFFIX}").is_file():
                 break
             done.append(i)
         for i in done[len(done) - memory_size:] if memory_size else []:

@@ -196,6 +196,9 @@ class Trainer:
         self.trained_s = float(t.get("trained_s", 0.0))
         self.schedule_s = float(t.get("schedule_s", self.trained_s))
         self.history = list(ck.metadata.get("history") or [])
+        if ck.metadata.get("data") != self.describe():  # the run goes on with other data: keep what came before
+            self.history.append({"resumed_at_step": self.step, "data": ck.metadata.get("data"),
+                                 "hardware": ck.metadata.get("hardware")})
         if t.get("grad_scaler"):
             self.scaler.load_state_dict(t["grad_scaler"])
         log.info("resumed from %s at step %d, epoch %d", path, self.step, self.epoch)

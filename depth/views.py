@@ -1,4 +1,5 @@
-"""Frames as the network sees them and back: fitting to the network size, images as tensors."""
+"""Frames as the network sees them and back: the network size turned to the frames' orientation,
+fitting to it (stretch / crop, said out loud), images as tensors."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,17 +12,51 @@ from recon.scan import Scan
 from .options import FITS
 
 
+def network_size(frame_size: tuple[int, int], width: int, height: int) -> tuple[int, int]:
+    """The network input size (w, h) for frames of `frame_size`: width x height turned to the frames'
+    orientation, so a portrait clip runs at 256x320 rather than squashed into 320x256. The network
+    is size-agnostic (sizes in multiples of 32) and is trained on portrait clips the same way."""
+    W, H = frame_size
+    return (height, width) if (H > W) != (height > width) and H != W else (width, height)
+
+
+def describe_view(frame_size: tuple[int, int], width: int, height: int, fit: str) -> dict:
+    """What fitting frames to the network does to them, for logs and depth.json: sizes, whether the
+    network size was turned, and how much "stretch" changes the aspect ratio (1 = not at all)."""
+    w, h = network_size(frame_size, width, height)
+    W, H = frame_size
+    change = (w / h) / (W / H) if fit == "stretch" else 1.0
+    return {"frame_size": [int(W), int(H)], "network_size": [w, h], "turned": (w, h) != (width, height),
+            "fit": fit, "aspect_change": round(change, 4)}
+
+
+def view_message(view: dict) -> str:
+    W, H = view["frame_size"]
+    w, h = view["network_size"]
+    turned = " (network size turned to the frames' portrait orientation)" if view["turned"] else ""
+    if view["fit"] == "crop":
+        how = "scaled to cover it and centre-cropped, aspect ratio kept"
+    elif abs(view["aspect_change"] - 1) < 0.01:
+        how = "aspect ratio kept"
+    else:
+        how = (f"stretched: aspect ratio {W / H:.3f} -> {w / h:.3f}, pixels {view['aspect_change']:.2f}x as wide as "
+               "tall (what the network was trained on; --fit crop keeps the aspect ratio)")
+    return f"depth: {W}x{H} frames run at {w}x{h}{turned}, {how}"
+
+
 def network_view(scan: Scan, width: int, height: int, fit: str = "stretch") -> Scan:
-    """`scan` as the network sees it: width x height images, intrinsics following.
+    """`scan` as the network sees it: images of the network size (`network_size`: width x height, turned
+    for portrait frames), intrinsics following.
 
     "stretch" resizes the whole frame (pixels turn non-square when the aspect ratios differ);
-    "crop" scales the frame to cover width x height and keeps the centre window.
+    "crop" scales the frame to cover the network size and keeps the centre window.
     """
     if fit not in FITS:
         raise ReconError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
+    W, H = scan.intrinsics.size
+    width, height = network_size((W, H), width, height)
     if fit == "stretch":
         return scan.resized(width, height)
-    W, H = scan.intrinsics.size
     scale = max(width / W, height / H)
     cover_w, cover_h = max(width, round(W * scale)), max(height, round(H * scale))
     return scan.resized(cover_w, cover_h).cropped((cover_w - width) // 2, (cover_h - height) // 2, width, height)

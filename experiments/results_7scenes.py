@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import Callable
 
 from depth.checkpoint import DEFAULT_WEIGHTS
+from fusion.filtering import FilterConfig
+from fusion.mesh import MeshCleanup
 from recon.errors import ReconError
 from recon.scan import Scan
 
@@ -50,6 +52,9 @@ class TableOptions:
     mesh_baselines: tuple[str, ...] = ("planesweep",)  # rows also fused and scored, for comparison
     voxel_size: float = 0.04
     mesh_depth_max: float = 4.0
+    depth_filter: FilterConfig = field(default_factory=FilterConfig)  # what `recon run` fuses with by default
+    cleanup: MeshCleanup | None = field(default_factory=MeshCleanup)
+    min_confidence: float | None = None  # fusion drops depth below this confidence (the filter's, when it checks)
     resume: bool = True
     extra: dict = field(default_factory=dict)
 
@@ -130,26 +135,33 @@ def covered_abs_rel(pred_dir: Path, scan: Scan, min_depth: float, max_depth: flo
     return float(np.mean(values)) if values else float("nan")
 
 
-def mesh_scores(scan: Scan, out_dir: Path, opts: TableOptions, log: Callable[[str], None] = print) -> dict:
-    """Fuse the predicted depth of `opts.mesh_row` and the GT depth of the same frames; score one against the other."""
+def mesh_scores(scan: Scan, out_dir: Path, opts: TableOptions, log: Callable[[str], None] = print,
+                reference=None) -> dict:
+    """Fuse the predicted depth of `opts.mesh_row` (through `opts.depth_filter`, cleaned with `opts.cleanup`) and
+    score it against `reference` (a mesh), by default the fusion of the GT depth of the same frames."""
     from fusion.evaluate import mesh_metrics
+    from fusion.filtering import filtered_depth
     from fusion.tsdf import TSDFConfig, fuse_scan
 
     cfg = TSDFConfig(voxel_size=opts.voxel_size, depth_max=opts.mesh_depth_max, device="cpu")
     t0 = time.time()
-    gt = fuse_scan(scan, "gt", TSDFConfig(voxel_size=opts.voxel_size, depth_max=opts.mesh_depth_max, device="cpu"))
-    gt.export(out_dir / "mesh_gt_fusion.ply")
+    if reference is None:
+        reference = fuse_scan(scan, "gt", cfg)
+        reference.export(out_dir / "mesh_gt_fusion.ply")
+    source = filtered_depth(scan, out_dir / opts.mesh_row, opts.depth_filter, cfg)
     try:
-        pred = fuse_scan(scan, out_dir / opts.mesh_row, cfg)
+        pred = fuse_scan(scan, source, replace(cfg, min_confidence=opts.min_confidence), cleanup=opts.cleanup)
     except ReconError as exc:  # no depth survived (a sparse method on few frames): nothing reconstructed
         log(f"mesh ({label(opts.mesh_row)}): {exc}")
         return {"acc": math.nan, "comp": math.nan, "chamfer": math.nan, "prec": 0.0, "recall": 0.0, "fscore": 0.0,
-                "row": opts.mesh_row, "empty": True}
+                "row": opts.mesh_row, "empty": True, "filter": source.stats.as_dict()}
     pred.export(out_dir / f"mesh_{opts.mesh_row}.ply")
-    m = mesh_metrics(pred, gt, scan=scan)
-    m.update({"row": opts.mesh_row, "voxel_size": opts.voxel_size, "depth_max": opts.mesh_depth_max})
-    log(f"mesh ({label(opts.mesh_row)} vs GT-depth fusion): acc {m['acc']:.4f} m  comp {m['comp']:.4f} m  "
-        f"prec {m['prec']:.3f}  recall {m['recall']:.3f}  F {m['fscore']:.3f}  ({time.time() - t0:.0f} s)")
+    m = mesh_metrics(pred, reference, scan=scan)
+    m.update({"row": opts.mesh_row, "voxel_size": opts.voxel_size, "depth_max": opts.mesh_depth_max,
+              "filter": source.stats.as_dict()})
+    log(f"mesh ({label(opts.mesh_row)}): acc {m['acc']:.4f} m  comp {m['comp']:.4f} m  "
+        f"prec {m['prec']:.3f}  recall {m['recall']:.3f}  F {m['fscore']:.3f}  "
+        f"kept {m['filter']['kept_share']:.1%} of the depth  ({time.time() - t0:.0f} s)")
     return m
 
 

@@ -8,7 +8,7 @@ every held-out scan through `experiments.results_7scenes.depth_table` (the same 
 table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
 need (experiments/ship_weights.py). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
 against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. Every row
-sweeps the first checkpoint's trained depth range.
+sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 and 910002 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256.
 The demo room (seed 7, clean): every 4th frame, 320x240. ICL-NUIM living room 1: every 5th frame at
@@ -73,8 +73,8 @@ def main(argv=None) -> int:
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():
-            # every row sweeps the first checkpoint's trained range (the plane sweep's too)
-            opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(args.checkpoints[0]), mesh=False)
+            # each checkpoint sweeps its own trained range, as the product uses it; the plane sweep the first's
+            opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(ck), mesh=False)
             res = depth_table(scan, out / name / scan_name, opts, log=lambda s: print(f"{name} {scan_name}: {s}"))
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"

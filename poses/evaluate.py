@@ -27,11 +27,20 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[
     return scale, R, t
 
 
+def frames_used(scan: Scan) -> list[str] | None:
+    """The frames SfM was given (registered and not), for a scan SfM made; None for any other scan."""
+    sfm = scan.metadata.extra.get("sfm")
+    return None if not isinstance(sfm, dict) else list(scan.names) + list(sfm.get("unregistered", []))
+
+
 def pose_metrics(pred: Scan, gt: Scan, with_scale: bool = True) -> dict[str, float]:
     """ATE RMSE (GT units) of the camera centres after Sim(3) alignment, frames matched by name.
 
-    `registered` is the share of GT frames that have a predicted pose.
+    `registered` is the share of the frames used that got a pose: for an SfM scan the frames SfM
+    was given (not the ones a stride, a frame limit or the blur filter left out), else every GT frame.
     """
+    used = frames_used(pred)
+    pool = len(gt) if used is None else len({f.name for f in gt.frames} & set(used))
     gt_index = {f.name: f for f in gt.frames}
     pairs = [(f.camera_to_world[:3, 3], gt_index[f.name].camera_to_world[:3, 3])
              for f in pred.frames if f.name in gt_index]
@@ -44,6 +53,7 @@ def pose_metrics(pred: Scan, gt: Scan, with_scale: bool = True) -> dict[str, flo
     err = np.linalg.norm(aligned - dst, axis=1)
     path_length = float(np.linalg.norm(np.diff(dst, axis=0), axis=1).sum())
     return {"ate_rmse": float(np.sqrt(np.mean(err ** 2))), "ate_median": float(np.median(err)),
-            "registered": len(pairs) / len(gt), "frames_matched": len(pairs), "scale": scale,
+            "registered": len(pairs) / max(pool, 1), "frames_matched": len(pairs), "frames_used": pool,
+            "scale": scale,
             "trajectory_length": path_length,
             "alignment": {"scale": scale, "rotation": R.tolist(), "translation": t.tolist()}}

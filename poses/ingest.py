@@ -9,7 +9,8 @@ and timestamp so poses can be traced back to the input.
 
 Selection order: `stride` (every N-th input frame) -> `fps` (sharpest per interval)
 -> `max_frames` (the first N, so a long input is not decoded past them) -> blur
-rejection -> `min_motion_px`. As elsewhere in the project, --stride / --max-frames
+rejection (videos and scans: an image folder is a photo collection, with no neighbours
+in time to compare sharpness with) -> `min_motion_px`. As elsewhere in the project, --stride / --max-frames
 select frames first; the filters can only leave fewer.
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 from recon import io as rio
 from recon.io import working_size
 from recon.errors import ReconError
+from recon.scan import Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,13 @@ class IngestConfig:
     max_size: int = 640  # long side of the working images in pixels (never upscaled)
     min_frames: int = 10  # fewer usable frames than this cannot give a dependable reconstruction
     jpeg_quality: int = 95
+
+    def validate(self) -> "IngestConfig":
+        if self.stride < 1 or (self.max_frames is not None and self.max_frames < 1):
+            raise ReconError(f"invalid frame selection: stride={self.stride} max_frames={self.max_frames}")
+        if self.fps is not None and not self.fps > 0:
+            raise ReconError(f"--fps must be positive, got {self.fps}")
+        return self
 
 
 @dataclass
@@ -66,6 +75,7 @@ class IngestResult:
     rotation_deg: int = 0  # phone orientation from the container, already applied to the frames
     dropped_blurry: list[str] = field(default_factory=list)
     dropped_static: list[str] = field(default_factory=list)
+    camera: Intrinsics | None = None  # the capture's own pinhole camera at the working size (recorded scans)
 
     def summary(self) -> dict:
         return {"source": self.source, "kind": self.kind, "frames": len(self.frames),
@@ -101,18 +111,13 @@ def ingest(source: str | os.PathLike, out_dir: str | os.PathLike, config: Ingest
     Recorded scans keep their frame names (so SfM poses can be scored against the scan's own),
     and their poses are ignored.
     """
-    config = config or IngestConfig()
-    if config.stride < 1 or (config.max_frames is not None and config.max_frames < 1):
-        raise ReconError(f"invalid frame selection: stride={config.stride} max_frames={config.max_frames}")
-    if config.fps is not None and config.fps <= 0:
-        raise ReconError(f"--fps must be positive, got {config.fps}")
+    config = (config or IngestConfig()).validate()
     source = Path(source)
     if not source.exists():
         raise ReconError(f"{source}: no such file or folder")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = rio.own_folder(out_dir)  # emptied below: never through a link to someone's photos
     for old in out_dir.glob("*.jpg"):  # a re-run must not mix in frames of an earlier selection
-        old.unlink()
+        rio.remove_path(old)
     scan_format = _scan_format(source)
     if scan_format:
         result = _ingest_scan(source, scan_format, out_dir, config)
@@ -126,10 +131,7 @@ def ingest(source: str | os.PathLike, out_dir: str | os.PathLike, config: Ingest
 # -- sources -----------------------------------------------------------------------------------
 
 def _ingest_video(path: Path, out_dir: Path, config: IngestConfig) -> IngestResult:
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise ReconError(f"{path}: cannot be opened as a video (empty, damaged or unsupported codec); "
-                         "re-encode it (e.g. ffmpeg -i IN -c:v libx264 OUT.mp4) or pass a folder of images")
+    cap = rio.open_video(path, "; re-encode it (e.g. ffmpeg -i IN -c:v libx264 OUT.mp4) or pass a folder of images")
     try:
         video_fps = cap.get(cv2.CAP_PROP_FPS) or 0.0
         video_fps = video_fps if np.isfinite(video_fps) and video_fps > 0 else None
@@ -191,9 +193,10 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
     files = numbered_files(folder, IMAGE_SUFFIXES)[:: config.stride][: config.max_frames]
     frames, size, first_size = [], None, None
     for i, f in enumerate(files):
-        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if bgr is None:
-            log.warning("%s: unreadable image, skipped", f)
+        try:  # through rio, so a broken file is one warning line, never libpng's own
+            bgr = cv2.cvtColor(rio.read_image(f), cv2.COLOR_RGB2BGR)
+        except ReconError as exc:
+            log.warning("%s; skipped", exc)
             continue
         if size is None:
             first_size = (bgr.shape[1], bgr.shape[0])
@@ -224,7 +227,7 @@ def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> I
                                     f.source_index if f.source_index is not None else i * config.stride,
                                     f.timestamp, sharpness(rgb)))
         rio.write_image(frames[-1].path, rgb, config.jpeg_quality)
-    return IngestResult(frames, out_dir, str(path), "scan", size)
+    return IngestResult(frames, out_dir, str(path), "scan", size, camera=scan.intrinsics)
 
 
 # -- selection ---------------------------------------------------------------------------------
@@ -232,7 +235,9 @@ def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> I
 def _finish(result: IngestResult, config: IngestConfig) -> IngestResult:
     frames = result.frames
     decoded = len(frames)
-    blurry = set(blurry_indices([f.sharpness for f in frames], config.blur_window, config.blur_ratio))
+    # Blur is judged against neighbours in time; a folder of photos has none (it is matched as unordered too).
+    ratio = 0.0 if result.kind == "images" else config.blur_ratio
+    blurry = set(blurry_indices([f.sharpness for f in frames], config.blur_window, ratio))
     result.dropped_blurry = [frames[i].name for i in sorted(blurry)]
     frames = [f for i, f in enumerate(frames) if i not in blurry]
     if config.min_motion_px:

@@ -53,13 +53,20 @@ class SourceConfig:
         return self
 
 
+def pose_distances(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(combined, rotation, translation) distances between camera-to-world poses, broadcast like numpy:
+    a (..., 4, 4), b (..., 4, 4) -> three (...) arrays (e.g. a[:, None], b[None] gives every pair)."""
+    rel = invert_pose(np.asarray(a, np.float64)) @ np.asarray(b, np.float64)
+    trace = np.minimum(3.0, np.trace(rel[..., :3, :3], axis1=-2, axis2=-1))
+    rotation = np.sqrt(2.0 * (1.0 - trace / 3.0))
+    translation = np.linalg.norm(rel[..., :3, 3], axis=-1)
+    return np.hypot(translation, rotation), rotation, translation
+
+
 def pose_distance(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
     """(combined, rotation, translation) distance between two camera-to-world poses."""
-    rel = invert_pose(np.asarray(a, np.float64)) @ np.asarray(b, np.float64)
-    trace = min(3.0, float(np.trace(rel[:3, :3])))
-    rotation = float(np.sqrt(2.0 * (1.0 - trace / 3.0)))
-    translation = float(np.linalg.norm(rel[:3, 3]))
-    return float(np.hypot(translation, rotation)), rotation, translation
+    combined, rotation, translation = pose_distances(a, b)
+    return float(combined), float(rotation), float(translation)
 
 
 def _check_poses(camera_to_world: np.ndarray) -> np.ndarray:

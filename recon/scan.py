@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from . import io as rio
-from .errors import ReconError, ScanFormatError
+from .errors import ReconError, ScanFormatError, naming
 from .geometry import check_pose, intrinsic_matrix
 
 SCAN_FILE = "scan.json"
@@ -219,10 +219,15 @@ class Scan:
         img = f.image_array if f.image_array is not None else rio.read_image(self._path(f.image_path, f.name))
         src = self.source_intrinsics
         if img.shape[:2] != (src.height, src.width):
-            raise ReconError(f"{f.image_path or f.name}: image is {img.shape[1]}x{img.shape[0]}, "
+            raise ReconError(f"{self.image_file(i) if f.image_path else f.name}: image is "
+                             f"{img.shape[1]}x{img.shape[0]}, "
                              f"scan intrinsics say {src.width}x{src.height}")
         img = self._undistort(img, cv2.INTER_LINEAR)
         return self._resize(img, cv2.INTER_AREA)
+
+    def image_file(self, i: int) -> Path:
+        """The file frame i's image is read from (before any undistortion, resizing or crop)."""
+        return self._path(self.frames[i].image_path, self.frames[i].name)
 
     def depth(self, i: int) -> np.ndarray | None:
         """float32 metres (H, W) of frame i at the output size, or None without GT depth."""
@@ -237,7 +242,8 @@ class Scan:
         if self.depth_intrinsics is not None:
             d = resample_depth(d, self.depth_intrinsics, src)
         elif d.shape != (src.height, src.width):
-            raise ReconError(f"{f.depth_path or f.name}: depth is {d.shape[1]}x{d.shape[0]} but images are "
+            raise ReconError(f"{self._path(f.depth_path, f.name) if f.depth_path else f.name}: depth is "
+                             f"{d.shape[1]}x{d.shape[0]} but images are "
                              f"{src.width}x{src.height}, and the scan gives no depth camera intrinsics")
         d = self._undistort(d, cv2.INTER_NEAREST)
         return self._resize(d, cv2.INTER_NEAREST)
@@ -268,16 +274,33 @@ class Scan:
         return img
 
     def validate(self) -> "Scan":
-        """Check poses (shape, finite, rigid) and names; returns self."""
+        """Check poses (shape, finite, rigid), names (unique, usable as file names) and that ground-truth
+        depth is all or nothing (one missing map would silently turn off depth scoring); returns self.
+
+        Every reader's scan passes here, so this is the one place frame names are checked before
+        stages name their output files by them."""
+        where = self.root or "scan"
         if not self.frames:
-            raise ReconError(f"{self.root or 'scan'}: scan has no frames")
+            raise ReconError(f"{where}: scan has no frames")
         seen = set()
         for f in self.frames:
-            check_pose(f.camera_to_world, f"{self.root or 'scan'} frame {f.name}")
+            check_pose(f.camera_to_world, f"{where} frame {f.name}")
+            rio.check_file_name(f.name, f"{where}: frame name")
             if f.name in seen:
-                raise ReconError(f"{self.root or 'scan'}: duplicate frame name {f.name}")
+                raise ReconError(f"{where}: duplicate frame name {f.name}")
             seen.add(f.name)
+        self._check_depth_files()
         return self
+
+    def _check_depth_files(self) -> None:
+        with_depth = [f for f in self.frames if f.has_depth]
+        if with_depth and len(with_depth) < len(self.frames):
+            lacking = next(f for f in self.frames if not f.has_depth)
+            raise ReconError(f"{self.root or 'scan'}: frame {lacking.name} has no depth map while {len(with_depth)} "
+                             f"of {len(self.frames)} frames do (add it, or leave the frame out)")
+        for f in with_depth:
+            if f.depth_array is None and not self._path(f.depth_path, f.name).is_file():
+                raise ReconError(f"{self._path(f.depth_path, f.name)}: depth map of frame {f.name} is missing")
 
 
 def resample_depth(depth_m: np.ndarray, depth_camera: Intrinsics, color_camera: Intrinsics) -> np.ndarray:
@@ -308,6 +331,7 @@ def save_scan(scan: Scan, out_dir: str | os.PathLike, image_ext: str = ".jpg",
     `progress(i, n)` is called after each frame when given.
     """
     out_dir = Path(out_dir)
+    scan.validate()  # frame names become file names below
     intr = scan.intrinsics
     with rio.atomic_dir(out_dir) as tmp:
         frames_json = []
@@ -351,10 +375,12 @@ def load_scan(path: str | os.PathLike) -> Scan:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ScanFormatError(f"{jpath}: invalid JSON ({exc})") from None
     root = jpath.parent
-    if doc.get("version") != SCAN_VERSION:
-        raise ScanFormatError(f"{jpath}: unsupported scan version {doc.get('version')!r}")
+    if not isinstance(doc, dict) or doc.get("version") != SCAN_VERSION:
+        version = doc.get("version") if isinstance(doc, dict) else None
+        raise ScanFormatError(f"{jpath}: unsupported scan version {version!r}")
     try:
-        intr = Intrinsics.from_dict(doc["intrinsics"])
+        with naming(jpath):
+            intr = Intrinsics.from_dict(doc["intrinsics"])
         frames = []
         for k, e in enumerate(doc["frames"]):
             pose = check_pose(np.array(e["camera_to_world"], dtype=np.float64), f"{jpath} frame {e.get('name', k)}")
@@ -362,7 +388,7 @@ def load_scan(path: str | os.PathLike) -> Scan:
                 name=str(e["name"]), camera_to_world=pose, image_path=Path(e["image"]),
                 depth_path=Path(e["depth"]) if e.get("depth") else None,
                 timestamp=e.get("timestamp"), source_index=e.get("source_index")))
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ScanFormatError(f"{jpath}: malformed entry ({exc!r})") from None
     meta = ScanMetadata.from_dict(doc.get("metadata", {}))
     return Scan(intr, frames, meta, root=root).validate()

@@ -39,3 +39,18 @@ def single_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def small_run(tmp_path_factory) -> Path:
+    """A finished `recon run` folder (plane sweep, every stage) of a small synthetic room with exact ground
+    truth, shared by the report and export tests: read it, never change it."""
+    from apps.pipeline import InputConfig, Pipeline, RunConfig
+    from depth.options import DepthOptions
+    from recon.synthetic import SynthConfig, write_synthetic_scan
+
+    room = write_synthetic_scan(SynthConfig(seed=5, frames=30, width=128, height=96),
+                                tmp_path_factory.mktemp("small_room") / "scan")
+    out = tmp_path_factory.mktemp("small_run") / "out"
+    Pipeline(RunConfig(InputConfig(str(room)), str(out), depth=DepthOptions(mode="planesweep"))).run()
+    return out

@@ -116,3 +116,58 @@ def test_done_when_kitchen_fuse_and_self_eval(sevenscenes, tmp_path):
     assert len(m.faces) > 20_000 and np.all(extent > 1.0) and np.all(extent < 8.0)  # a kitchen, metres
     proc = recon("eval", "mesh", str(mesh), str(mesh), "--json")
     assert proc.returncode == 0 and json.loads(proc.stdout)["fscore"] == 1.0
+
+
+def test_batch_help_states_exit_status():
+    text = " ".join(recon("batch", "--help").stdout.split())  # argparse wraps the description
+    assert "1 when any scan failed" in text and "2 for bad options" in text
+
+
+def test_error_line_is_one_line_naming_the_file():
+    from apps.cli import error_line
+    from recon.errors import ReconError
+
+    assert error_line(PermissionError(13, "Permission denied", "/data/run")) == "/data/run: permission denied"
+    moved = OSError(18, "Invalid cross-device link", "/a", None, "/b")
+    assert error_line(moved) == "/a -> /b: invalid cross-device link"
+    spilled = ReconError("x.png: unreadable image (libpng error:\nIDAT)")
+    assert error_line(spilled) == "x.png: unreadable image (libpng error: IDAT)"
+
+
+def test_log_lines_print_above_the_live_bars_in_a_terminal(tmp_path):
+    """In a terminal a log record goes through rich to the console the bar draws on, so it starts a cleared
+    line of its own (a plain handler wrote it after the bar: `... eta 0:00:02depth: 40 frames in 75.8 s`)."""
+    import os
+    import pty
+    import re
+    import select
+    import time
+
+    from recon.plane_scene import plane_scan
+
+    scan = save_scan(plane_scan(3, 64, 48, step=0.08), tmp_path / "scan")
+    leader, follower = pty.openpty()
+    env = dict(os.environ, TERM="xterm-256color", COLUMNS="100", LINES="30")
+    proc = subprocess.Popen([sys.executable, "-m", "apps.cli", "depth", str(scan), "--out", str(tmp_path / "d"),
+                             "--mode", "planesweep", "--keyframe-distance", "0"],
+                            cwd=ROOT, stdin=follower, stdout=follower, stderr=follower, env=env)
+    os.close(follower)
+    chunks, deadline = [], time.monotonic() + 300
+    while time.monotonic() < deadline:
+        if not select.select([leader], [], [], 1.0)[0]:
+            continue
+        try:
+            data = os.read(leader, 65536)
+        except OSError:  # the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(leader)
+    assert proc.wait(timeout=300) == 0
+    text = re.sub(r"\x1b\[[0-9;]*m", "", b"".join(chunks).decode(errors="replace"))  # colours only
+    assert "━" in text, text[-2000:]  # a live rich bar was drawn
+    hits = [m.start() for m in re.finditer(r"depth: 3 frames in", text)]
+    assert hits, text[-2000:]
+    for at in hits:  # each at the start of a line the console cleared or began
+        assert text[:at].endswith(("\x1b[2K", "\r", "\n")), repr(text[max(0, at - 80):at + 40])

@@ -1,6 +1,7 @@
 """Depth over a scan: ESTM memory, agreement between modes, resizing, outputs on disk, bad input."""
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -58,8 +59,8 @@ def test_modes_agree_where_they_should(estimator, scan):
     assert all(np.abs(e.depth - i.depth).max() > 1e-5 for e, i in zip(estm[1:], independent[1:]))
     # Joint on a 3-frame group: every frame attends to the other two, so all differ from independent.
     assert all(np.abs(j.depth - i.depth).max() > 1e-5 for j, i in zip(joint[:3], independent[:3]))
-    for r in estm:
-        assert r.depth.shape == (90, 120) and r.confidence.shape == (90, 120)
+    for r in estm:  # stored at the network's long side (96 of TINY's 96x64), the scan's aspect: 96x72
+        assert r.depth.shape == (72, 96) and r.confidence.shape == (72, 96)
         assert r.depth.min() >= 1.0 - 1e-4 and r.depth.max() <= 5.0 + 1e-4
 
 
@@ -81,9 +82,17 @@ def test_estimate_depth_writes_maps_and_summary(tmp_path, scan):
     expected = select_sources(scan.camera_to_world)[2]
     assert summary["frames"][2]["sources"] == [scan.names[j] for j in expected]
     depth = load_depth_map(out, scan.names[2])
-    assert depth.shape == (90, 120) and depth.dtype == np.float32
-    assert load_confidence_map(out, scan.names[2]).shape == (90, 120)
+    assert depth.shape == (72, 96) and depth.dtype == np.float32
+    assert load_confidence_map(out, scan.names[2]).shape == (72, 96)
     assert (out / "depth.json").is_file()
+    full_out = tmp_path / "full"
+    estimate_depth(scan, full_out, DepthOptions(mode="estm", weights=str(weights), full_resolution=True))
+    full = load_depth_map(full_out, scan.names[2])
+    assert full.shape == (90, 120)  # on request, the scan's own grid
+    # The stored grid keeps what the network said: the full-resolution map brought down to it agrees.
+    assert np.abs(cv2.resize(full, (96, 72), interpolation=cv2.INTER_AREA) - depth).mean() < 0.01 * depth.mean()
+    size = sum(p.stat().st_size for p in out.glob("*.png"))
+    assert size < 0.8 * sum(p.stat().st_size for p in full_out.glob("*.png"))  # 96x72 of 120x90 pixels: 0.64
     ps = estimate_depth(scan, tmp_path / "ps", DepthOptions(mode="planesweep"))
     assert ps["mode"] == "planesweep" and len(ps["frames"]) == 5
     gt = scan.depth(2)
@@ -151,7 +160,7 @@ def test_resume_reuses_finished_frames_only_with_same_settings(tmp_path, scan):
 
     with pytest.raises(KeyboardInterrupt):
         estimate_depth(scan, out, opts, progress=stop_after_two)
-    assert not (out / "depth.json").exists() and (out / "000001.npy").is_file()
+    assert not (out / "depth.json").exists() and (out / "000001.png").is_file()
     computed = []
     summary = estimate_depth(scan, out, opts, resume=True, progress=lambda i, n: computed.append(i))
     assert computed == [3, 4, 5]
@@ -203,8 +212,8 @@ def test_crop_fit_keeps_square_pixels_and_maps_back_to_the_window():
 
 def test_crop_fit_gives_no_depth_outside_the_window(estimator):
     wide = plane_scan(4, 200, 80, step=0.08)
-    full = _run(estimator, wide, mode="estm")
-    crop = _run(estimator, wide, mode="estm", fit="crop")
+    full = _run(estimator, wide, mode="estm", full_resolution=True)
+    crop = _run(estimator, wide, mode="estm", fit="crop", full_resolution=True)
     for f, c in zip(full, crop):
         assert c.depth.shape == f.depth.shape == (80, 200)
         assert (f.depth > 0).all()

@@ -78,3 +78,45 @@ def test_bad_mesh_files(tmp_path):
         load_mesh(tmp_path / "empty.ply")
     with pytest.raises(ReconError, match="not found"):
         load_mesh(tmp_path / "missing.ply")
+
+
+def _voxels(integrator):
+    """(voxel keys sorted, tsdf, weight, color) of every allocated voxel, in a canonical order."""
+    xyz, index = integrator.grid.voxel_coordinates_and_flattened_indices()
+    index = index.numpy().ravel()
+    keys = np.round(xyz.numpy() / integrator.config.voxel_size).astype(np.int64)
+    order = np.lexsort(keys.T)
+    attrs = [integrator.grid.attribute(n).numpy().reshape(-1, c)[index][order] for n, c in
+             (("tsdf", 1), ("weight", 1), ("color", 3))]
+    return keys[order], *attrs
+
+
+def test_per_pixel_weights_of_one_reproduce_open3d_integration(room):
+    """The weighted update is Open3D's own with the weight 1 replaced: same voxels, distances and colours."""
+    config = TSDFConfig(depth_max=6.0, device="cpu")
+    native, weighted = TSDFIntegrator(config), TSDFIntegrator(config)
+    for i in range(0, len(room), 3):
+        args = (room.depth(i), room.image(i), room.intrinsics, room.frames[i].camera_to_world)
+        native.integrate(*args)
+        weighted.integrate(*args, weight=np.ones_like(room.depth(i)))
+    (ka, ta, wa, ca), (kb, tb, wb, cb) = _voxels(native), _voxels(weighted)
+    assert np.array_equal(ka, kb) and wa.sum() > 10_000
+    assert np.mean(wa == wb) > 0.9999  # a voxel on a pixel boundary may fall either way in float32
+    seen = ((wa > 0) & (wb > 0)).ravel()
+    assert np.mean(np.abs(ta - tb).ravel()[seen] < 1e-4) > 0.999
+    assert np.mean(np.abs(ca - cb).max(1)[seen] < 1e-2) > 0.999
+    assert len(native.extract_mesh().faces) == len(weighted.extract_mesh().faces)
+
+
+def test_per_pixel_weights_scale_what_a_view_contributes(room):
+    one = room.subset([0])
+    config = TSDFConfig(depth_max=6.0, device="cpu")
+    full = TSDFIntegrator(config)
+    full.integrate(one.depth(0), one.image(0), one.intrinsics, one.frames[0].camera_to_world, weight=None)
+    half = TSDFIntegrator(config)
+    weight = np.full(one.depth(0).shape, 2.0, np.float32)
+    weight[:, : weight.shape[1] // 2] = 0.0  # the left half counts nothing
+    half.integrate(one.depth(0), one.image(0), one.intrinsics, one.frames[0].camera_to_world, weight=weight)
+    wf, wh = _voxels(full)[2], _voxels(half)[2]
+    assert set(np.unique(wh)) <= {0.0, 2.0} and 0.3 < (wh > 0).sum() / (wf > 0).sum() < 0.7
+    assert 0.3 * full.extract_mesh().area < half.extract_mesh().area < 0.7 * full.extract_mesh().area

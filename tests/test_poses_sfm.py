@@ -152,3 +152,122 @@ def test_kitchen_200_frames_registration_and_ate(sevenscenes, tmp_path, mapper):
     m = pose_metrics(scan, open_scan(sevenscenes).select(0, 5, 200))
     assert m["registered"] >= 0.95
     assert m["ate_rmse"] <= 0.05
+
+
+# -- repeatable SfM, an honest camera, the matcher and the retries -----------------------------------
+
+@pytest.fixture(scope="module")
+def room_video(tmp_path_factory):
+    """A rendered room as a 24-frame mp4 (a 2.4 s walk at 10 fps, 320x256, pinhole camera)."""
+    from recon.synthetic.generate import SynthConfig, write_synthetic_scan
+
+    return write_synthetic_scan(SynthConfig(seed=1, frames=24, fps=10.0), tmp_path_factory.mktemp("room") / "scan",
+                                video=True)
+
+
+def test_two_sfm_runs_of_one_video_give_identical_poses_and_a_pinhole(room_video, tmp_path):
+    runs = [estimate_poses(room_video / "video.mp4", tmp_path / f"run{k}") for k in range(2)]
+    (first, report), (second, _) = runs
+    assert first.names == second.names and len(first) >= 22
+    assert np.array_equal(first.camera_to_world, second.camera_to_world)  # bit for bit, not just 1e-6
+    # A distortion-free camera: the auto camera stays pinhole (k1 exactly 0, nothing to undistort).
+    assert first.distortion is None and report["sfm"]["camera"]["params"][3] == 0.0
+    assert report["sfm"]["distortion_test"]["kept"] is False
+    gt = open_scan(room_video)
+    assert first.intrinsics.fx == pytest.approx(gt.intrinsics.fx, rel=0.1)
+    m = pose_metrics(first, gt)
+    assert m["ate_rmse"] <= 0.02 * m["trajectory_length"]
+
+
+def _distort(image: np.ndarray, K: np.ndarray, k1: float) -> np.ndarray:
+    """The pinhole `image` as seen through a lens with radial distortion k1 (same K)."""
+    h, w = image.shape[:2]
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 1, 2)
+    ideal = cv2.undistortPoints(grid, K, np.array([k1, 0.0, 0.0, 0.0]), P=K).reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(image, ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+def test_auto_camera_keeps_distortion_the_data_shows(room_video, tmp_path):
+    """The same frames through a barrel lens (k1 = -0.2): the radial model is kept and k1 recovered."""
+    gt = open_scan(room_video)
+    folder = tmp_path / "lens"
+    folder.mkdir()
+    for i in range(len(gt)):
+        cv2.imwrite(str(folder / f"{gt.names[i]}.png"),
+                    cv2.cvtColor(_distort(gt.image(i), gt.intrinsics.K, -0.2), cv2.COLOR_RGB2BGR))
+    scan, report = estimate_poses(folder, tmp_path / "poses", PosesConfig(ingest=IngestConfig(blur_ratio=0.0)))
+    test = report["sfm"]["distortion_test"]
+    assert test["kept"] and test["gain"] > 0.05  # the outer ring's error drops by more than 5 %
+    assert scan.distortion is not None and scan.distortion[0] == pytest.approx(-0.2, abs=0.05)
+    assert scan.intrinsics.fx == pytest.approx(gt.intrinsics.fx, rel=0.05)
+    assert pose_metrics(scan, gt)["registered"] >= 0.9
+
+
+def test_matcher_follows_the_input():
+    from poses.sfm import choose_matcher
+
+    config = SfMConfig()
+    assert choose_matcher(config, 30, ordered=True) == "exhaustive"  # a short clip: all pairs cost the same
+    assert choose_matcher(config, 200, ordered=True) == "sequential"  # a video: neighbours in order
+    assert choose_matcher(config, 200, ordered=False) == "exhaustive"  # a photo folder: no order to trust
+    assert choose_matcher(config, 1000, ordered=False) == "sequential"  # too many for all pairs
+    assert choose_matcher(SfMConfig(matcher="exhaustive"), 1000, ordered=True) == "exhaustive"
+
+
+def test_mapping_plan_tries_what_a_careful_user_would():
+    from poses.sfm import mapping_plan
+
+    labels = [a.label for a in mapping_plan(SfMConfig())]
+    assert labels == ["incremental-pinhole", "global-pinhole", "incremental-pinhole-relaxed",
+                      "incremental-radial-relaxed"]
+    assert [a.label for a in mapping_plan(SfMConfig(camera_model="OPENCV", mapper="global"))] == [
+        "global-radial", "incremental-radial", "incremental-radial-relaxed", "incremental-pinhole-relaxed"]
+    assert [a.label for a in mapping_plan(SfMConfig(camera_model="PINHOLE"))][-1] == "incremental-pinhole-relaxed"
+    assert len(mapping_plan(SfMConfig(fallback=False))) == 1
+    with pytest.raises(ReconError, match="unknown SfM matcher"):
+        SfMConfig(matcher="vocab").validate()
+
+
+def test_registered_share_counts_the_frames_sfm_was_given():
+    """195 of 200 frames used, 190 posed: 97 %, not 190 of the sequence's 1000."""
+    from fixtures.box_room import box_room_scan
+
+    gt = box_room_scan(20, 32, 24)
+    pred = gt.subset(list(range(2, 10)))
+    pred.metadata.extra["sfm"] = {"unregistered": [gt.names[10], gt.names[11]]}
+    m = pose_metrics(pred, gt)
+    assert m["frames_used"] == 10 and m["registered"] == pytest.approx(0.8)
+    del pred.metadata.extra["sfm"]  # any other scan: the share of every ground-truth frame
+    assert pose_metrics(pred, gt)["registered"] == pytest.approx(8 / 20)
+
+
+def test_run_and_poses_take_the_same_sfm_options():
+    """Every SfM option a failure message can name exists in both commands, with one default."""
+    from apps.cli import build_parser
+    from apps.options import poses_config
+
+    parser = build_parser()
+    sfm_args = ["--fps", "5", "--camera-model", "SIMPLE_RADIAL", "--matcher", "exhaustive", "--mapper", "global",
+                "--stride", "2", "--parallel-mapping"]
+    poses = parser.parse_args(["poses", "clip.mp4", "--out", "o", *sfm_args])
+    run = parser.parse_args(["run", "clip.mp4", "--out", "o", *sfm_args])
+    assert poses_config(poses) == poses_config(run)
+    config = poses_config(run)
+    assert config.ingest.fps == 5 and config.ingest.stride == 2
+    assert (config.sfm.camera_model, config.sfm.matcher, config.sfm.mapper, config.sfm.deterministic) == (
+        "SIMPLE_RADIAL", "exhaustive", "global", False)
+    defaults = [poses_config(parser.parse_args([cmd, "clip.mp4", "--out", "o"])) for cmd in ("poses", "run")]
+    assert defaults[0] == defaults[1] == PosesConfig()
+
+
+@pytest.mark.slow
+def test_photo_collection_registers_like_exhaustive_colmap(tmp_path):
+    """50 photos 25 degrees apart round a rendered room, shuffled names: matched all-pairs, >= 95 % registered."""
+    from recon.synthetic.collection import GROUND_TRUTH, PHOTOS, write_photo_collection
+    from recon.synthetic.generate import SynthConfig
+
+    folder = write_photo_collection(SynthConfig(seed=3, frames=50, width=640, height=480), tmp_path / "photos")
+    scan, report = estimate_poses(folder / PHOTOS, tmp_path / "poses")
+    assert report["sfm"]["matcher"] == "exhaustive"
+    m = pose_metrics(scan, open_scan(folder / GROUND_TRUTH))
+    assert m["registered"] >= 0.95 and m["ate_rmse"] <= 0.05

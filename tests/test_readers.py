@@ -162,3 +162,58 @@ def test_empty_frames(tmp_path):
     (tmp_path / "transforms.json").write_text(json.dumps({"fl_x": 1, "frames": []}))
     with pytest.raises(ReconError, match="'frames' is empty"):
         open_scan(tmp_path)
+
+
+ZERO_FOCAL = {  # format -> (intrinsics file, how to write a zero focal length into it)
+    "7scenes": ("color-intrinsics.txt", lambda p: np.savetxt(p, np.diag([0.0, 0.0, 1.0]))),
+    "scannet": ("intrinsic/intrinsic_color.txt", lambda p: np.savetxt(p, np.diag([0.0, 0.0, 1.0, 1.0]))),
+    "tum": ("camera-intrinsics.txt", lambda p: np.savetxt(p, np.diag([0.0, 0.0, 1.0]))),
+    "simplerecon": ("K.txt", lambda p: np.savetxt(p, np.diag([0.0, 0.0, 1.0]))),
+    "open3d": ("camera_intrinsic.json", lambda p: p.write_text(json.dumps({"intrinsic_matrix": [0.0] * 8 + [1.0]}))),
+    "nerfstudio": ("transforms.json", lambda p: p.write_text(p.read_text().replace('"fl_x": ', '"fl_x": 0, "x": '))),
+}
+
+
+@pytest.mark.parametrize("fmt", sorted(ZERO_FOCAL))
+def test_zero_focal_length_names_its_file(fmt, tmp_path):
+    WRITERS[fmt](box_room_scan(3, 32, 24), tmp_path)
+    name, write = ZERO_FOCAL[fmt]
+    write(tmp_path / name)
+    with pytest.raises(ReconError, match="focal") as err:
+        open_scan(tmp_path)
+    assert str(tmp_path / name) in str(err.value)
+
+
+def test_sevenscenes_frame_without_pose_is_refused(tmp_path):
+    WRITERS["7scenes"](box_room_scan(4, 32, 24), tmp_path)
+    (tmp_path / "frame-000001.pose.txt").unlink()
+    with pytest.raises(ReconError, match="frame-000001.color.png: no pose file"):
+        open_scan(tmp_path)
+
+
+@pytest.mark.parametrize("fmt,depth_file", [("7scenes", "frame-000002.depth.png"), ("scannet", "depth/2.png"),
+                                            ("nerfstudio", "depth/frame_00002.png")])
+def test_one_missing_depth_map_is_refused(fmt, depth_file, tmp_path):
+    """One lost depth PNG must not quietly turn off depth and mesh scoring for the whole scan."""
+    WRITERS[fmt](box_room_scan(4, 32, 24), tmp_path)
+    (tmp_path / depth_file).unlink()
+    with pytest.raises(ReconError, match="depth map of frame .* is missing") as err:
+        open_scan(tmp_path)
+    assert str(tmp_path / depth_file) in str(err.value)
+
+
+def test_unsafe_frame_names_are_refused(tmp_path):
+    """Frame names become file names in every stage's output; Scan.validate, which every reader's scan (and
+    save_scan) passes, refuses any that would climb out of a folder."""
+    from recon.io import check_file_name
+    from recon.scan import save_scan
+
+    for bad in ("../x", "/abs/x", "a/b", "..", "", "a\\b", "tab\there"):
+        with pytest.raises(ReconError, match="cannot be a file name"):
+            check_file_name(bad)
+    assert check_file_name("frame 000001 ü") == "frame 000001 ü"
+    scan = box_room_scan(3, 32, 24)
+    scan.frames[1].name = "../../escaped"
+    with pytest.raises(ReconError, match="escaped"):
+        save_scan(scan, tmp_path / "out")
+    assert not (tmp_path / "escaped.jpg").exists() and not (tmp_path / "out").exists()

@@ -5,7 +5,7 @@ import pytest
 
 from recon.errors import ReconError
 from recon.geometry import project
-from recon.io import atomic_path, load_depth_map, save_depth_map
+from recon.io import atomic_path, load_confidence_map, load_depth_map, save_depth_map
 from recon.scan import Intrinsics, load_scan, save_scan
 
 from fixtures.box_room import box_room_scan
@@ -124,10 +124,15 @@ def test_failed_write_leaves_nothing(tmp_path):
 
 def test_depth_map_files_round_trip(tmp_path):
     depth = np.linspace(0, 5, 12, dtype=np.float32).reshape(3, 4)
-    conf = np.full((3, 4), 0.5, np.float32)
+    conf = np.linspace(0, 1, 12, dtype=np.float32).reshape(3, 4)
+    (tmp_path / "000007.npy").write_bytes(b"an older layout's float map")  # replaced, never preferred
     save_depth_map(tmp_path, "000007", depth, conf)
-    assert np.array_equal(load_depth_map(tmp_path, "000007"), depth)  # exact from .npy
-    (tmp_path / "000007.npy").unlink()
-    assert np.abs(load_depth_map(tmp_path, "000007") - depth).max() <= 0.0005 + 1e-6  # PNG fallback
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["000007.conf.png", "000007.png"]
+    loaded = load_depth_map(tmp_path, "000007")
+    assert loaded.dtype == np.float32 and np.abs(loaded - depth).max() <= 0.0005 + 1e-6  # millimetres
+    assert np.abs(load_confidence_map(tmp_path, "000007") - conf).max() <= 0.5 / 255 + 1e-7  # steps of 1/255
+    assert load_confidence_map(tmp_path, "000008") is None
+    np.save(tmp_path / "000009.npy", depth)  # another tool's float prediction is read as it is
+    assert np.array_equal(load_depth_map(tmp_path, "000009"), depth)
     with pytest.raises(ReconError, match="no depth map for frame 000008"):
         load_depth_map(tmp_path, "000008")

@@ -39,8 +39,8 @@ def count_gmacs(cfg, memory_size: int) -> float:
     """MACs (in G) of one ESTM step: features of 3 frames, one target, `memory_size` memories."""
     from depth.model import ESTNet
 
-    with torch.device("meta"):
-        net = ESTNet(cfg).eval()
+    with torch.device("meta"):  # shapes only: no pretrained weights to load
+        net = ESTNet(cfg, pretrained=False).eval()
         images = torch.rand(1, 3, 3, cfg.image_height, cfg.image_width)
         K = torch.eye(3)[None]
         poses = torch.eye(4).repeat(1, 3, 1, 1)

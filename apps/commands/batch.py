@@ -5,22 +5,27 @@ from apps import options
 
 
 def register(subparsers):
+    subparsers.add_parser("batch", help="run the pipeline over every scan of a dataset",
+                          description="One run folder per scan under --out and a summary (summary.csv, "
+                                      "summary.json, index.html). Resumable; a failed scan is recorded and "
+                                      "the others go on. Frame selection and every pipeline option apply to "
+                                      "each scan. Exit status: 0 when every scan is done or skipped, 1 when any "
+                                      "scan failed (the others still finish), 2 for bad options.",
+                          arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     from apps.commands.run import add_pipeline_args
 
-    p = subparsers.add_parser("batch", help="run the pipeline over every scan of a dataset",
-                              description="One run folder per scan under --out and a summary (summary.csv, "
-                                          "summary.json, index.html). Resumable; a failed scan is recorded and "
-                                          "the others go on.")
     p.add_argument("dataset", help="folder whose sub-folders are scans (or video files), or a list file of paths")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--engine", choices=["local", "ray"], default="local",
-                   help="local process pool (default) or Ray tasks")
-    p.add_argument("--workers", type=int, default=1, help="local: scans at once (default 1)")
+                   help="local process pool or Ray tasks")
+    p.add_argument("--workers", type=int, default=1, help="local: scans at once")
     p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
     p.add_argument("--cpus-per-scan", type=float, default=1.0, help="ray: CPUs each scan's task requests")
     p.add_argument("--gpus-per-scan", type=float, default=0.0, help="ray: GPUs each scan's task requests")
-    p.add_argument("--format", default="auto", help="input format of every scan (default: auto-detect)")
-    options.add_selection(p)
+    options.add_format(p)
     add_pipeline_args(p, with_input=False)
     p.set_defaults(func=run)
 

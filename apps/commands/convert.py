@@ -5,9 +5,13 @@ from apps.progress import progress_bar
 
 
 def register(subparsers):
-    p = subparsers.add_parser("convert", help="write a scan as a canonical scan folder",
-                              description="Read a scan in any supported format (undistorting and resizing as asked) "
-                                          "and write it as a canonical folder: scan.json, images/, depth/.")
+    subparsers.add_parser("convert", help="write a scan as a canonical scan folder",
+                          description="Read a scan in any supported format (undistorting and resizing as asked) "
+                                      "and write it as a canonical folder: scan.json, images/, depth/.",
+                          arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     options.add_input(p)
     p.add_argument("--out", required=True, help="output folder (replaced atomically when complete)")
     p.add_argument("--size", default=None, metavar="WxH", help="resize images (intrinsics follow)")

@@ -15,12 +15,17 @@ DEMO_SIZE = (320, 240)
 
 
 def register(subparsers):
+    subparsers.add_parser("demo", help="run the whole pipeline on the embedded synthetic room",
+                          description="Reconstruct the embedded example (a synthetic room video with supplied "
+                                      "poses and exact ground truth), print a summary, write report.html. "
+                                      "`--poses colmap` takes the video through SfM instead.",
+                          arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     from apps.commands.run import add_pipeline_args
 
-    p = subparsers.add_parser("demo", help="run the whole pipeline on the embedded synthetic room",
-                              description="Reconstruct the embedded example (a synthetic room video with supplied "
-                                          "poses and exact ground truth), print a summary, write report.html.")
-    p.add_argument("--out", default="out/demo", help="run folder (default out/demo)")
+    p.add_argument("--out", default="out/demo", help="run folder")
     add_pipeline_args(p, with_input=False)
     p.set_defaults(func=run, mode=None)
 

@@ -12,15 +12,20 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers):
-    p = subparsers.add_parser(
+    subparsers.add_parser(
         "depth", help="estimate a depth map per frame (EST network with temporal memory, or plane sweep)",
-        description="Predict depth and confidence for every selected frame and write <name>.npy/.png/.conf.npy "
-                    "plus depth.json to --out. Learned modes use the shipped weights unless --weights names others; "
-                    "planesweep needs none.")
+        description="Predict depth and confidence for every selected frame and write <name>.png (mm) / .conf.png "
+                    "plus depth.json to --out, at the network's resolution unless --full-res-depth. Learned modes "
+                    "use the shipped weights unless --weights names others; planesweep needs none.",
+        arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     options.add_input(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for the depth maps")
     options.add_keyframes(p)
     options.add_depth(p, with_device=True)
+    options.add_depth_storage(p)
     p.set_defaults(func=run)
 
 

@@ -7,50 +7,63 @@ from apps.progress import progress_bar
 
 
 def register(subparsers):
-    p = subparsers.add_parser("eval", help="evaluate depth maps, a mesh or poses against ground truth",
-                              description="Evaluation against ground truth; every sub-command prints a table, "
-                                          "or one JSON object with --json.")
-    sub = p.add_subparsers(dest="what", metavar="WHAT")
+    subparsers.add_parser("eval", help="evaluate depth maps, a mesh or poses against ground truth",
+                          description="Evaluation against ground truth; every sub-command prints a table, "
+                                      "or one JSON object with --json.", arguments=add_arguments)
 
-    d = sub.add_parser("depth", help="depth accuracy and temporal coherence",
-                       description="Eigen metrics (abs_rel abs sq_rel rmse rmse_log a1 a2 a3) averaged per frame, then "
-                                   "over frames, plus temporal coherence (mae_mean, mae_std, pose-aware flicker).")
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="what", metavar="WHAT")
+    sub.add_parser("depth", help="depth accuracy and temporal coherence", arguments=_depth_arguments,
+                   description="Eigen metrics (abs_rel abs sq_rel rmse rmse_log a1 a2 a3) averaged per frame, then "
+                               "over frames, plus temporal coherence (mae_mean, mae_std, pose-aware flicker).")
+    sub.add_parser("mesh", help="mesh accuracy / completeness / F-score", arguments=_mesh_arguments,
+                   description="TransformerFusion protocol: points sampled with a fixed seed on each mesh, a "
+                               "5 cm threshold, distances capped at 1 m; --scan culls points its cameras never saw.")
+    sub.add_parser("poses", help="absolute trajectory error after Sim(3) alignment", arguments=_poses_arguments,
+                   description="ATE RMSE of camera centres after a similarity alignment; frames matched by name.")
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _depth_arguments(d) -> None:
+    from apps.pipeline import EvalConfig
+
     d.add_argument("--pred", required=True, help="folder of predicted depth maps (<frame name>.npy or .png)")
     d.add_argument("--scan", required=True, help="scan with ground-truth depth")
-    d.add_argument("--format", default="auto", help="scan format (default auto)")
+    options.add_format(d)
     options.add_selection(d)
-    d.add_argument("--min-depth", type=float, default=1e-3, help="evaluation range start in metres (default 0.001)")
-    d.add_argument("--max-depth", type=float, default=10.0, help="evaluation range end in metres (default 10)")
+    d.add_argument("--min-depth", type=float, default=1e-3, help="evaluation range start in metres")
+    d.add_argument("--max-depth", type=float, default=EvalConfig.max_depth, help="evaluation range end in metres")
     d.add_argument("--size", default=None, metavar="WxH", help="evaluate at this resolution (GT resized, nearest)")
     d.add_argument("--align", choices=["none", "median"], default="none",
                    help="median: rescale each prediction to GT (for non-metric predictions; say so when reporting)")
-    d.add_argument("--json", action="store_true")
+    d.add_argument("--json", action="store_true", help="print one JSON object (with the per-frame rows)")
     d.set_defaults(func=run_depth)
 
-    m = sub.add_parser("mesh", help="mesh accuracy / completeness / F-score",
-                       description="TransformerFusion protocol: 200k points sampled with a fixed seed on each mesh, "
-                                   "5 cm threshold, distances capped at 1 m; --scan culls points its cameras never saw.")
+
+def _mesh_arguments(m) -> None:
+    from fusion.evaluate import MeshEvalConfig
+
     m.add_argument("pred", help="predicted mesh")
     m.add_argument("gt", help="ground-truth mesh")
     m.add_argument("--scan", default=None, help="scan whose cameras define the observed region (visibility culling)")
-    m.add_argument("--format", default="auto", help="scan format (default auto)")
+    options.add_format(m)
     options.add_selection(m)
-    m.add_argument("--points", type=int, default=200_000, help="points sampled per mesh (default 200000)")
-    m.add_argument("--threshold", type=float, default=0.05, help="distance threshold in metres (default 0.05)")
-    m.add_argument("--occlusion-margin", type=float, default=0.05,
-                   help="with --scan: points up to this far behind the GT depth still count as seen (default 0.05 m)")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--json", action="store_true")
+    m.add_argument("--points", type=int, default=MeshEvalConfig.n_points, help="points sampled per mesh")
+    m.add_argument("--threshold", type=float, default=MeshEvalConfig.threshold, help="distance threshold in metres")
+    m.add_argument("--occlusion-margin", type=float, default=MeshEvalConfig.occlusion_margin,
+                   help="with --scan: points up to this far (m) behind the GT depth still count as seen")
+    m.add_argument("--seed", type=int, default=MeshEvalConfig.seed, help="point sampling seed")
+    m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=run_mesh)
 
-    q = sub.add_parser("poses", help="absolute trajectory error after Sim(3) alignment",
-                       description="ATE RMSE of camera centres after a similarity alignment; frames matched by name.")
+
+def _poses_arguments(q) -> None:
     q.add_argument("--pred", required=True, help="scan with estimated poses")
     q.add_argument("--gt", required=True, help="scan with ground-truth poses")
     q.add_argument("--no-scale", action="store_true", help="rigid (SE(3)) alignment instead of Sim(3)")
-    q.add_argument("--json", action="store_true")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=run_poses)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _print(result: dict, as_json: bool) -> None:

@@ -1,18 +1,20 @@
 """`recon info`: what a scan contains, or the list of readable formats."""
-import numpy as np
-
 from apps import options
 from apps.common import open_selected_scan, print_json
 
 
 def register(subparsers):
-    p = subparsers.add_parser("info", help="describe a scan (frames, intrinsics, scale, depth)",
-                              description="Read a scan in any supported format and summarise it.")
+    subparsers.add_parser("info", help="describe a scan (frames, intrinsics, scale, depth)",
+                          description="Read a scan in any supported format and summarise it.", arguments=add_arguments)
+    subparsers.add_parser("formats", help="list the scan formats `--format` accepts",
+                          description="The scan formats `--format` accepts, with what each reads.",
+                          arguments=lambda p: p.set_defaults(func=run_formats))
+
+
+def add_arguments(p) -> None:
     options.add_input(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
-    sub = subparsers.add_parser("formats", help="list the scan formats `--format` accepts")
-    sub.set_defaults(func=run_formats)
 
 
 def run_formats(args):
@@ -24,6 +26,8 @@ def run_formats(args):
 
 
 def run(args):
+    import numpy as np
+
     scan = open_selected_scan(args.scan, args)
     centres = scan.camera_to_world[:, :3, 3]
     length = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum()) if len(scan) > 1 else 0.0
@@ -31,7 +35,8 @@ def run(args):
             "intrinsics": scan.intrinsics.to_dict(), "metric_scale": scan.metadata.metric_scale,
             "has_depth": scan.has_depth, "trajectory_length": length,
             "first_frame": scan.frames[0].name, "last_frame": scan.frames[-1].name,
-            "distorted": scan.distortion is not None, "gt_mesh": scan.metadata.gt_mesh}
+            "distorted": scan.distortion is not None, "gt_mesh": scan.metadata.gt_mesh,
+            "missing_images": int(scan.metadata.extra.get("missing_images", 0))}  # listed, skipped by the reader
     if args.json:
         print_json(info)
     else:

@@ -11,12 +11,13 @@ def add_pipeline_args(p, with_input: bool = True) -> None:
     if with_input:
         p.add_argument("input", help="a video file, an image folder, or a recorded scan in any supported format")
         p.add_argument("--out", required=True, help="run folder (stage outputs are cached here)")
-        p.add_argument("--format", default="auto", help="input scan format (default auto)")
-        options.add_selection(p)
+        options.add_format(p)
+    options.add_selection(p)
     options.add_pose_source(p)
     options.add_sfm(p)
     options.add_keyframes(p)
     options.add_depth(p)
+    options.add_depth_storage(p)
     options.add_fusion(p)
     options.add_device(p)
     options.add_evaluation(p)
@@ -25,10 +26,14 @@ def add_pipeline_args(p, with_input: bool = True) -> None:
 
 
 def register(subparsers):
-    p = subparsers.add_parser("run", help="video / images / scan -> poses -> depth -> mesh -> report",
-                              description="The whole pipeline. Stage outputs are cached in the run folder; a re-run "
-                                          "skips finished stages and frames. Writes mesh.ply, report.json and "
-                                          "report.html.")
+    subparsers.add_parser("run", help="video / images / scan -> poses -> depth -> mesh -> report",
+                          description="The whole pipeline. Stage outputs are cached in the run folder; a re-run "
+                                      "skips finished stages and frames. Writes mesh.ply, report.json and "
+                                      "report.html; `recon export` turns a finished run into other formats.",
+                          arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     add_pipeline_args(p)
     p.set_defaults(func=run)
 
@@ -37,13 +42,13 @@ def config_from_args(args, input_path: str, out: str, **input_changes):
     """The run config of a command line: each stage's config from the shared options."""
     from apps.pipeline import EvalConfig, InputConfig, RunConfig
 
-    source = InputConfig(path=input_path, format=getattr(args, "format", "auto"), poses=args.poses,
-                         start=getattr(args, "start", 0), stride=getattr(args, "stride", 1),
-                         max_frames=getattr(args, "max_frames", None), gt_poses=args.gt_poses)
+    source = InputConfig(path=input_path, format=getattr(args, "format", "auto"), poses=args.poses, start=args.start,
+                         stride=args.stride, max_frames=args.max_frames, gt_poses=args.gt_poses)
     return RunConfig(input=dataclasses.replace(source, **input_changes), out=out, sfm=options.poses_config(args),
                      keyframes=options.keyframe_config(args),
                      depth=options.depth_options(args, options.pick_mode(args.mode, args.weights)),
-                     fusion=options.tsdf_config(args), evaluation=EvalConfig(gt_mesh=args.gt_mesh)).validate()
+                     fusion=options.tsdf_config(args), depth_filter=options.filter_config(args),
+                     cleanup=options.cleanup_config(args), evaluation=EvalConfig(gt_mesh=args.gt_mesh)).validate()
 
 
 def execute(config, force, quiet: bool) -> dict:
@@ -64,6 +69,11 @@ def print_summary(report: dict, out) -> None:
     table = Table(title="recon run summary")
     table.add_column("section")
     table.add_column("figures")
+    stages = report.get("stages", {})
+    if "scan" in stages:
+        table.add_row("frames", f"{stages['scan'].get('frames')} ({stages['scan'].get('keyframes')} keyframes)")
+    if "faces" in stages.get("fusion", {}):
+        table.add_row("mesh", f"{stages['fusion']['faces']:,} triangles, {stages['fusion']['vertices']:,} vertices")
     for stage, seconds in report.get("timing", {}).items():
         table.add_row(f"time: {stage}", f"{seconds:.1f} s")
     table.add_row("peak memory", f"{report['memory']['peak_rss_mb']:.0f} MB")

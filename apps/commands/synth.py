@@ -7,16 +7,20 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers):
-    p = subparsers.add_parser(
+    subparsers.add_parser(
         "synth", help="render a synthetic room (images, exact depth, poses, gt_mesh.ply)",
         description="Generate a procedural room from a seed, walk a handheld-like camera through it and "
                     "write a canonical scan with exact depth and the ground-truth mesh; optionally also an "
-                    ".mp4 video with its poses as a nerfstudio transforms.json.")
+                    ".mp4 video with its poses as a nerfstudio transforms.json.", arguments=add_arguments)
+
+
+def add_arguments(p) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output scan folder (replaced when it exists)")
     p.add_argument("--frames", type=int, default=300, metavar="N", help="number of frames (default 300)")
     p.add_argument("--size", default="320x256", metavar="WxH", help="image size (default 320x256)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="room and camera path seed (default 0)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the walk (default 30)")
+    p.add_argument("--frame-rate", type=float, default=30.0, metavar="FPS",
+                   help="frames per second of the walk and its video (default 30)")
     p.add_argument("--hfov", type=float, default=None, metavar="DEG",
                    help="horizontal field of view (default: drawn from 55-75 per seed)")
     p.add_argument("--effects", action="store_true",
@@ -32,7 +36,7 @@ def run(args) -> int:
     from recon.scan import load_scan
 
     width, height = parse_size(args.size)
-    config = SynthConfig(seed=args.seed, frames=args.frames, width=width, height=height, fps=args.fps,
+    config = SynthConfig(seed=args.seed, frames=args.frames, width=width, height=height, fps=args.frame_rate,
                          hfov_deg=args.hfov, effects=SensorEffects.realistic() if args.effects else SensorEffects())
     out = write_synthetic_scan(config, args.out, video=args.video)
     scan = load_scan(out)

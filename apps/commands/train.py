@@ -17,11 +17,14 @@ VAL_CLIPS = 8
 
 
 def register(subparsers):
-    p = subparsers.add_parser(
-        "train", help="train the EST depth network on scans with ground-truth depth",
+    subparsers.add_parser(
+        "train", help="train the EST depth network on scans with ground-truth depth", arguments=add_arguments,
         description="Train on 5-frame clips (3 targets) with the multi-stage loss. Writes last.pt (resumable), "
                     "step_NNNNNN.pt at every validation, log.jsonl and model.pt to --out. Run under torchrun for "
                     "several GPUs.")
+
+
+def add_arguments(p) -> None:
     p.add_argument("scans", nargs="*", help="training scans (any supported format with GT depth)")
     p.add_argument("--synthetic", action="store_true",
                    help="train on an endless stream of synthetic rooms (clean and sensor-degraded clips, several "
@@ -107,6 +110,23 @@ def _size(text: str) -> tuple[int, int] | None:
     return None if text.lower() == "none" else parse_size(text, "--low-res", multiple=32)
 
 
+def stream_seed(args: argparse.Namespace, rank: int) -> int:
+    """The synthetic stream's seed: --seed for a fresh run; for a resumed or initialised one, a seed drawn
+    from (--seed, rank, the step it starts at), so a continued run sees new rooms, not the first ones again."""
+    import numpy as np
+
+    from depth.checkpoint import load_checkpoint
+
+    step = 0
+    if args.resume:
+        step = int(load_checkpoint(args.resume).training.get("step", 0))
+    elif args.init:
+        step = int(load_checkpoint(args.init).metadata.get("steps", 0))
+    if step == 0 and rank == 0:
+        return args.seed
+    return int(np.random.SeedSequence([args.seed, rank, step]).generate_state(1)[0] & 0x3FFFFFFF)
+
+
 def _data(args: argparse.Namespace, cfg):
     from depth.data import ClipDataset, ClipOptions, StreamingClips
     from recon.errors import ReconError
@@ -130,14 +150,14 @@ def _data(args: argparse.Namespace, cfg):
     from recon.synthetic import iter_training_mix
 
     rank = int(os.environ.get("RANK", "0"))
-    stream = iter_training_mix(args.seed + 1000 * rank, tuple(args.depth_range))
+    stream = iter_training_mix(stream_seed(args, rank), tuple(args.depth_range))
     if args.val:
         val = ClipDataset(scans(args.val), plain)
     else:
         held_out = iter_training_mix(VAL_SEED, tuple(args.depth_range), clips_per_scene=2)
         val = ClipDataset(list(itertools.islice(held_out, VAL_CLIPS)), plain)
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
-        "train": "recon.synthetic.iter_training_mix", "train_seed": args.seed, "val_seed": VAL_SEED,
+        "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
         "depth_range": list(args.depth_range)}), val
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import ScanFormatError
-from recon.io import read_image
+from recon.io import read_depth_png, read_image
 from recon.scan import Frame
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
@@ -50,12 +50,8 @@ def image_size(path: Path) -> tuple[int, int]:
 
 def depth_size(path: Path) -> tuple[int, int]:
     """(width, height) of a depth image file."""
-    import cv2
-
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ScanFormatError(f"{path}: unreadable depth image")
-    return raw.shape[1], raw.shape[0]
+    depth = read_depth_png(path)
+    return depth.shape[1], depth.shape[0]
 
 
 def require_dir(path: Path, what: str) -> Path:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.geometry import world_to_camera_to_pose
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
@@ -76,7 +76,8 @@ def scan_from_reconstruction(reconstruction, image_dir: Path, source_format: str
     cam_ids = {im.camera_id for im in images}
     if len(cam_ids) > 1:
         raise ScanFormatError(f"{image_dir}: the COLMAP model has {len(cam_ids)} cameras; one shared camera is supported")
-    intr, dist = camera_to_intrinsics(reconstruction.cameras[cam_ids.pop()])
+    with naming(image_dir):
+        intr, dist = camera_to_intrinsics(reconstruction.cameras[cam_ids.pop()])
     frames = []
     for im in images:
         cfw = _cam_from_world(im)

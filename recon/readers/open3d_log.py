@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.scan import Intrinsics, Scan, ScanMetadata
 
 from ._common import image_size, numbered_files, numbered_frames, require_same_count
@@ -63,5 +63,7 @@ def read(path: Path) -> Scan:
     require_same_count(images, poses, "images", f"poses in {log.name}", path)
     w, h = image_size(images[0])
     frames = numbered_frames(path, images, poses)
-    return Scan(Intrinsics(*_intrinsics(path), w, h), frames,
+    with naming(path / "camera_intrinsic.json"):  # the defaults cannot fail
+        intr = Intrinsics(*_intrinsics(path), w, h)
+    return Scan(intr, frames,
                 ScanMetadata(metric_scale=True, source_format=NAME), root=path)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
 from ._common import depth_size, frame_number, image_size, load_matrix, numbered_files, require_dir
@@ -33,6 +33,7 @@ def read(path: Path) -> Scan:
     depth_K_file = path / "intrinsic" / "intrinsic_depth.txt"
     depth_intr = None
     frames, dropped = [], 0
+    has_depth = (path / "depth").is_dir() and any((path / "depth").glob("*.png"))  # then every frame needs its map
     for c in colors:
         n = frame_number(c)
         pfile = path / "pose" / f"{n}.txt"
@@ -44,17 +45,19 @@ def read(path: Path) -> Scan:
             continue
         depth = path / "depth" / f"{n}.png"
         frames.append(Frame(name=f"{n:06d}", camera_to_world=pose, image_path=c,
-                            depth_path=depth if depth.is_file() else None, source_index=n))
+                            depth_path=depth if has_depth else None, source_index=n))
     if not frames:
         raise ScanFormatError(f"{path}: every pose is invalid")
-    first_depth = next((f.depth_path for f in frames if f.depth_path is not None), None)
+    first_depth = next((f.depth_path for f in frames if f.depth_path is not None and f.depth_path.is_file()), None)
     if first_depth is not None:
         dw, dh = depth_size(first_depth)
         if depth_K_file.is_file():
-            depth_intr = Intrinsics.from_K(load_matrix(depth_K_file, (4, 4))[:3, :3], dw, dh)
+            with naming(depth_K_file):
+                depth_intr = Intrinsics.from_K(load_matrix(depth_K_file, (4, 4))[:3, :3], dw, dh)
         elif (dw, dh) != (w, h):
             raise ScanFormatError(f"{depth_K_file}: missing, and depth ({dw}x{dh}) differs from color ({w}x{h})")
     meta = ScanMetadata(metric_scale=True, source_format=NAME, extra={"dropped_invalid_poses": dropped})
-    color = Intrinsics.from_K(K, w, h)
+    with naming(kfile):
+        color = Intrinsics.from_K(K, w, h)
     return Scan(color, frames, meta, root=path, depth_intrinsics=None if depth_intr in (None, color) else depth_intr)
 

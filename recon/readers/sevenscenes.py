@@ -14,7 +14,7 @@ import numpy as np
 
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 
 from ._common import depth_size, image_size, load_matrix, require_same_count
 
@@ -29,8 +29,15 @@ def detect(path: Path) -> bool:
 
 def read(path: Path) -> Scan:
     poses = sorted(path.glob("frame-*.pose.txt"))
+    stems = {p.name[: -len(".pose.txt")] for p in poses}
+    unposed = sorted(c for ext in (".jpg", ".png") for c in path.glob(f"frame-*.color{ext}")
+                     if c.name.split(".color.")[0] not in stems)
+    if unposed:  # dropping it would leave a hole in the sequence that nobody was told about
+        raise ScanFormatError(f"{unposed[0]}: no pose file ({unposed[0].name.split('.color.')[0]}.pose.txt) for this "
+                              "frame (add the pose, or remove the frame)")
     colors = [_color_file(path, p.name[: -len(".pose.txt")]) for p in poses]
     require_same_count(colors, poses, "color images", "pose files", path)
+    has_depth = any(path.glob("frame-*.depth.png"))  # then every frame must have its map (Scan.validate)
     depth_file, color_file = path / "camera-intrinsics.txt", path / "color-intrinsics.txt"
     depth_K = load_matrix(depth_file, (3, 3)) if depth_file.is_file() else DEFAULT_DEPTH_K
     color_K = load_matrix(color_file, (3, 3)) if color_file.is_file() else DEFAULT_COLOR_K
@@ -41,10 +48,13 @@ def read(path: Path) -> Scan:
         depth = path / f"{stem}.depth.png"
         name = stem.split("-")[-1]
         frames.append(Frame(name=name, camera_to_world=load_matrix(p, (4, 4)), image_path=c,
-                            depth_path=depth if depth.is_file() else None, source_index=int(name) if name.isdigit() else i))
-    first_depth = next((f.depth_path for f in frames if f.depth_path is not None), None)
+                            depth_path=depth if has_depth else None, source_index=int(name) if name.isdigit() else i))
+    first_depth = next((f.depth_path for f in frames if f.depth_path is not None and f.depth_path.is_file()), None)
     dw, dh = depth_size(first_depth) if first_depth is not None else (w, h)
-    color, depth = Intrinsics.from_K(color_K, w, h), Intrinsics.from_K(depth_K, dw, dh)
+    with naming(color_file if color_file.is_file() else path):
+        color = Intrinsics.from_K(color_K, w, h)
+    with naming(depth_file if depth_file.is_file() else path):
+        depth = Intrinsics.from_K(depth_K, dw, dh)
     return Scan(color, frames, ScanMetadata(metric_scale=True, source_format=NAME), root=path,
                 depth_intrinsics=None if depth == color else depth)
 

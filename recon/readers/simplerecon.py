@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.scan import Intrinsics, Scan, ScanMetadata
 
 from ._common import image_size, load_matrix, numbered_files, numbered_frames, require_dir, require_same_count
@@ -32,4 +32,6 @@ def read(path: Path) -> Scan:
     K = load_matrix(path / "K.txt", (3, 3))
     w, h = image_size(images[0])
     frames = numbered_frames(path, images, poses)
-    return Scan(Intrinsics.from_K(K, w, h), frames, ScanMetadata(metric_scale=True, source_format=NAME), root=path)
+    with naming(path / "K.txt"):
+        intr = Intrinsics.from_K(K, w, h)
+    return Scan(intr, frames, ScanMetadata(metric_scale=True, source_format=NAME), root=path)

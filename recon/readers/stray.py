@@ -25,7 +25,7 @@ import numpy as np
 
 from recon import io as rio
 from recon.io import working_size
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.geometry import quaternion_to_rotation
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
@@ -72,9 +72,7 @@ def _cache_dir(video: Path) -> Path:
 def decode_video(video: Path) -> tuple[Path, int, tuple[int, int], tuple[int, int]]:
     """Decode every frame once into the cache: (folder, frame count, video size, decoded size)."""
 
-    cap = cv2.VideoCapture(str(video))
-    if not cap.isOpened():
-        raise ScanFormatError(f"{video}: cannot be opened as a video")
+    cap = rio.open_video(video)
     width, height = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
     folder = _cache_dir(video)
     done = folder / "frames.done"
@@ -115,20 +113,22 @@ def read(path: Path) -> Scan:
         raise ScanFormatError(f"{kfile}: expected a 3x3 matrix, got shape {K.shape}")
     odometry = read_odometry(path / "odometry.csv")
     folder, count, video_size, size = decode_video(path / "rgb.mp4")
-    intr = Intrinsics.from_K(K, *video_size).resized(*size)
+    with naming(kfile):
+        intr = Intrinsics.from_K(K, *video_size).resized(*size)
     frames = []
+    has_depth = (path / "depth").is_dir() and any((path / "depth").glob("*.png"))  # then every frame needs its map
     for index, timestamp, pose in odometry:
         if index >= count:
             log.warning("%s: odometry frame %d is past the video's %d frames; ignored", path, index, count)
             continue
         depth = path / "depth" / f"{index:06d}.png"
         frames.append(Frame(name=f"{index:06d}", camera_to_world=pose, image_path=folder / f"{index:06d}.jpg",
-                            depth_path=depth if depth.is_file() else None, timestamp=timestamp,
+                            depth_path=depth if has_depth else None, timestamp=timestamp,
                             source_index=index))
     if not frames:
         raise ScanFormatError(f"{path}: odometry.csv names no frame of rgb.mp4")
     extra = {"confidence_dir": str(path / "confidence")} if (path / "confidence").is_dir() else {}
-    first_depth = next((f.depth_path for f in frames if f.depth_path is not None), None)
+    first_depth = next((f.depth_path for f in frames if f.depth_path is not None and f.depth_path.is_file()), None)
     # ARKit depth is the colour camera's view at a lower resolution: the same camera, rescaled.
     depth_intr = intr.resized(*depth_size(first_depth)) if first_depth is not None else None
     return Scan(intr, frames, ScanMetadata(metric_scale=True, source_format=NAME, extra=extra), root=path,

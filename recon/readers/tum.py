@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import ScanFormatError
+from recon.errors import ScanFormatError, naming
 from recon.geometry import quaternion_to_rotation
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata
 
@@ -52,15 +52,16 @@ def _nearest(times: np.ndarray, t: float) -> int | None:
     return best if abs(times[best] - t) <= MAX_DT else None
 
 
-def _intrinsics(path: Path) -> tuple[float, float, float, float]:
+def _intrinsics(path: Path) -> tuple[tuple[float, float, float, float], Path]:
+    """(fx, fy, cx, cy) and where they came from (a file, else the folder whose sensor name decides)."""
     for name in ("camera-intrinsics.txt", "intrinsics.txt"):
         if (path / name).is_file():
             K = load_matrix(path / name, (3, 3))
-            return K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+            return (K[0, 0], K[1, 1], K[0, 2], K[1, 2]), path / name
     for key, k in FREIBURG_K.items():
         if key in path.resolve().name:
-            return k
-    return DEFAULT_K
+            return k, path
+    return DEFAULT_K, path
 
 
 def read(path: Path) -> Scan:
@@ -94,6 +95,8 @@ def read(path: Path) -> Scan:
     if not frames:
         raise ScanFormatError(f"{path}: no color frame has a ground-truth pose within {MAX_DT} s")
     w, h = image_size(frames[0].image_path)
-    fx, fy, cx, cy = _intrinsics(path)
+    (fx, fy, cx, cy), source = _intrinsics(path)
     meta = ScanMetadata(metric_scale=True, source_format=NAME, extra={"frames_without_pose_or_depth": unmatched})
-    return Scan(Intrinsics(fx, fy, cx, cy, w, h), frames, meta, root=path)
+    with naming(source):
+        intr = Intrinsics(fx, fy, cx, cy, w, h)
+    return Scan(intr, frames, meta, root=path)

@@ -24,9 +24,9 @@ import trimesh
 
 from recon import io as rio
 from recon.errors import ReconError
-from recon.geometry import opencv_to_opengl
 from recon.keyframes import KeyframeConfig, select_keyframes
 from recon.scan import Frame, Intrinsics, Scan, ScanMetadata, save_scan
+from recon.writers import nerfstudio_transforms
 
 from .effects import SensorEffects, apply_image_effects, camera_gains, image_motion_px
 from .render import Renderer
@@ -181,17 +181,12 @@ def write_video(scan: Scan, folder: Path, fps: float) -> None:
             writer.write(cv2.cvtColor(scan.image(i), cv2.COLOR_RGB2BGR))
     finally:
         writer.release()
-    frames = []
-    for i, f in enumerate(scan.frames):
-        entry = {"file_path": f"images/{f.name}.jpg", "transform_matrix": opencv_to_opengl(f.camera_to_world).tolist(),
-                 "timestamp": f.timestamp, "video_frame": i}
+    doc = nerfstudio_transforms(scan, [f"images/{f.name}.jpg" for f in scan.frames])
+    for i, (entry, f) in enumerate(zip(doc["frames"], scan.frames)):
+        entry.update({"timestamp": f.timestamp, "video_frame": i})
         if f.has_depth:
             entry["depth_file_path"] = f"depth/{f.name}.png"
-        frames.append(entry)
-    doc = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx + 0.5, "cy": intr.cy + 0.5,
-           "w": intr.width, "h": intr.height, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
-           "metric_scale": True, "depth_unit_scale_factor": 0.001, "video_path": VIDEO_FILE, "fps": fps,
-           "frames": frames}
+    doc.update({"depth_unit_scale_factor": 0.001, "video_path": VIDEO_FILE, "fps": fps})
     rio.write_json_atomic(folder / TRANSFORMS_FILE, doc)
 
 

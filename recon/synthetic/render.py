@@ -95,6 +95,12 @@ class Renderer:
         return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32).reshape(intrinsics.height,
                                                                                  intrinsics.width)
 
+    def sees(self, eye: np.ndarray, target: np.ndarray, share: float = 0.9) -> bool:
+        """Whether the first `share` of the way from `eye` to `target` (world points) is free of surfaces."""
+        offset = np.asarray(target, np.float32) - np.asarray(eye, np.float32)
+        ray = o3c.Tensor(np.concatenate([np.asarray(eye, np.float32), offset])[None])
+        return bool(self._raycaster.cast_rays(ray)["t_hit"].numpy()[0] >= share)  # t in units of `offset`
+
     def render_linear(self, camera_to_world: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Linear radiance (H, W, 3) float32 and z-depth (H, W) float32 (0 = miss)."""
         c = self.cast(camera_to_world, intrinsics)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -181,3 +182,49 @@ def handheld_trajectory(free: FreeSpace, frames: int, fps: float, rng: np.random
     poses[:, :2, 3] = xy
     poses[:, 2, 3] = height
     return poses
+
+
+def orbit_poses(free: FreeSpace, centre: np.ndarray, views: int, step_deg: float, rng: np.random.Generator,
+                config: TrajectoryConfig = TrajectoryConfig(), clearance: float = 0.45,
+                radius_m: tuple[float, float] = (1.0, 3.5),
+                sees: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> np.ndarray:
+    """(views, 4, 4) camera-to-world poses of photos taken walking round `centre` (x, y), each aimed at it.
+
+    A photo collection rather than a video: consecutive views are `step_deg` apart round the
+    centre (wide baselines), walked for several laps when views x step exceeds 360 degrees. Each
+    lap has its own preferred distance and height, so no two photos repeat; in each direction the
+    camera stands at the clear spot (`clearance` from walls and furniture) nearest that distance,
+    as a person steps round the furniture, and directions with no clear spot are skipped.
+    `sees(eye, target)` (3-vectors) can refuse spots without a line of sight to the centre (a wall
+    of an L-shaped room in between).
+    """
+    centre = np.asarray(centre, dtype=np.float64)
+    radii = np.arange(radius_m[0], radius_m[1] + 1e-9, free.resolution_m)
+    start, laps, poses = rng.uniform(0, 2 * np.pi), {}, []
+    h_lo, h_hi = config.height_m
+    for k in range(views * 4):  # skipped directions need extra steps
+        if len(poses) == views:
+            break
+        travelled = np.radians(step_deg) * k
+        lap = int(travelled // (2 * np.pi))
+        if lap not in laps:
+            laps[lap] = (rng.uniform(*radius_m), rng.uniform(h_lo, h_hi))
+        preferred, height = laps[lap]
+        direction = np.array([np.cos(start + travelled), np.sin(start + travelled)])
+        spots = centre + radii[:, None] * direction
+        target = np.array([*centre, 0.8])
+        xy = next((spots[i] for i in np.argsort(np.abs(radii - preferred))
+                   if free.distance_at(spots[i]) >= clearance
+                   and (sees is None or sees(np.array([*spots[i], height]), target))), None)
+        if xy is None:
+            continue
+        yaw = np.arctan2(-direction[1], -direction[0]) + np.radians(rng.uniform(-10, 10, 1))
+        pose = np.eye(4)
+        pose[:3, :3] = look_rotation(yaw, np.radians(rng.uniform(*config.pitch_deg, 1)),
+                                     np.radians(rng.uniform(-3, 3, 1)))[0]
+        pose[:3, 3] = [xy[0], xy[1], height]
+        poses.append(pose)
+    if len(poses) < views:
+        raise ReconError(f"synthetic room: only {len(poses)} of {views} directions round the orbit's centre "
+                         "have a clear spot for the camera")
+    return np.array(poses)
