@@ -22,7 +22,7 @@ from recon.errors import ReconError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", default="compact", help="network config: paper or compact (default compact)")
+    parser.add_argument("--config", default="compact", help="network config: lite, compact or paper (default compact)")
     parser.add_argument("--mode", choices=("estm", "joint", "independent"), default="estm")
     parser.add_argument("--frames", type=int, default=8, help="frames timed after 3 warm-up frames (default 8)")
     parser.add_argument("--memory", type=int, default=None, metavar="N", help="ESTM memory length (default 2)")

@@ -61,6 +61,15 @@ def execute(config, force, quiet: bool) -> dict:
     return report
 
 
+# One summary line per metrics section of report.json, when the run has it.
+METRIC_LINES = {
+    "depth": "abs_rel {abs_rel:.4f}  rmse {rmse:.3f}  a1 {a1:.3f}  ({frames} frames, align {align})",
+    "temporal": "mae {mae_mean:.3f} +- {mae_std:.3f}  flicker {flicker:.4f}",
+    "mesh": "F-score {fscore:.3f}  acc {acc:.3f}  comp {comp:.3f}  prec {prec:.3f}  recall {recall:.3f}",
+    "poses": "ATE {ate_rmse:.4f}  registered {registered:.1%}",
+}
+
+
 def print_summary(report: dict, out) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -77,20 +86,9 @@ def print_summary(report: dict, out) -> None:
     for stage, seconds in report.get("timing", {}).items():
         table.add_row(f"time: {stage}", f"{seconds:.1f} s")
     table.add_row("peak memory", f"{report['memory']['peak_rss_mb']:.0f} MB")
-    if "depth" in report:
-        d = report["depth"]
-        table.add_row("depth", f"abs_rel {d['abs_rel']:.4f}  rmse {d['rmse']:.3f}  a1 {d['a1']:.3f}  "
-                               f"({d['frames']} frames, align {d['align']})")
-    if "temporal" in report:
-        t = report["temporal"]
-        table.add_row("temporal", f"mae {t['mae_mean']:.3f} +- {t['mae_std']:.3f}  flicker {t['flicker']:.4f}")
-    if "mesh" in report:
-        m = report["mesh"]
-        table.add_row("mesh", f"F-score {m['fscore']:.3f}  acc {m['acc']:.3f}  comp {m['comp']:.3f}  "
-                              f"prec {m['prec']:.3f}  recall {m['recall']:.3f}")
-    if "poses" in report:
-        q = report["poses"]
-        table.add_row("poses", f"ATE {q['ate_rmse']:.4f}  registered {q['registered']:.1%}")
+    for section, line in METRIC_LINES.items():
+        if section in report:
+            table.add_row(section, line.format(**report[section]))
     table.add_row("scale", "metric" if report.get("metric_scale") else "unknown (arbitrary units)")
     console.print(table)
     print(f"report: {out / 'report.html'}")
