@@ -332,6 +332,7 @@ def _tile(rgb: np.ndarray, width: int = TILE_WIDTH) -> str:
 def depth_rows(pipeline, count: int, unit: str) -> tuple[list[dict], list[dict], list[str]]:
     """Sampled keyframes as tiles (image, prediction, GT and error when metric GT exists, confidence),
     the colour scales they share, and the column names."""
+    from depth.metrics import on_gt_grid
     from recon.io import load_confidence_map, load_depth_map
 
     scan = pipeline.keyframe_scan()
@@ -346,7 +347,7 @@ def depth_rows(pipeline, count: int, unit: str) -> tuple[list[dict], list[dict],
     with_conf = any(f[3] is not None for f in frames)
     ref = np.concatenate([(f[4] if f[4] is not None else f[2]).ravel() for f in frames])
     lo, hi = np.percentile(ref[ref > 0], [2, 98]) if (ref > 0).any() else (0.0, 1.0)
-    errors = [np.abs(_on_grid(f[2], f[4]) - f[4])[(f[4] > 0) & (_on_grid(f[2], f[4]) > 0)] for f in frames if
+    errors = [np.abs(on_gt_grid(f[2], f[4]) - f[4])[(f[4] > 0) & (on_gt_grid(f[2], f[4]) > 0)] for f in frames if
               f[4] is not None]
     err_hi = max(float(np.percentile(np.concatenate(errors), 95)), 1e-3) if errors and sum(map(len, errors)) else 1.0
     rows = []
@@ -357,7 +358,7 @@ def depth_rows(pipeline, count: int, unit: str) -> tuple[list[dict], list[dict],
             tiles.append({"label": f"ground truth ({unit})",
                           "uri": _tile(colorize(gt, lo, hi, gt > 0)) if gt is not None else _tile(rgb * 0)})
             if gt is not None:
-                p = _on_grid(pred, gt)
+                p = on_gt_grid(pred, gt)
                 tiles.append({"label": f"|error| ({unit})", "uri": _tile(colorize(np.abs(p - gt), 0, err_hi,
                                                                                     (gt > 0) & (p > 0)))})
         if with_conf:
@@ -370,13 +371,6 @@ def depth_rows(pipeline, count: int, unit: str) -> tuple[list[dict], list[dict],
     if with_conf:
         scales.append(color_scale("confidence (0-1) of the prediction", 0.0, 1.0, colormap=cv2.COLORMAP_VIRIDIS))
     return rows, scales, [t["label"] for t in rows[0]["tiles"]] if rows else []
-
-
-def _on_grid(pred: np.ndarray, gt: np.ndarray | None) -> np.ndarray:
-    """The prediction resampled (nearest) onto the ground truth's grid, as the evaluation does."""
-    if gt is None or pred.shape == gt.shape:
-        return pred
-    return cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def write_report(pipeline, report: dict, path: Path) -> None:

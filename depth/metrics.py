@@ -41,6 +41,16 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3,
     }
 
 
+def on_gt_grid(pred_m: np.ndarray, gt_m: np.ndarray) -> np.ndarray:
+    """A prediction stored at network resolution, resampled (nearest, so holes stay holes) onto the
+    ground truth's grid: every score is taken at the GT's pixels. (H', W') -> gt_m's (H, W)."""
+    if pred_m.shape == gt_m.shape:
+        return pred_m
+    import cv2
+
+    return cv2.resize(pred_m, (gt_m.shape[1], gt_m.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
 def median_scale(pred_m: np.ndarray, gt_m: np.ndarray) -> float:
     """Ratio median(gt) / median(pred) on pixels valid in both: aligns non-metric predictions."""
     both = (pred_m > 0) & (gt_m > 0) & np.isfinite(pred_m) & np.isfinite(gt_m)
@@ -89,8 +99,6 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
     the result then says so. Temporal keys come from consecutive frames of the scan;
     `per_frame` lists each frame's abs_rel, abs and flicker (with the previous frame).
     """
-    import cv2
-
     from recon.errors import ReconError
     from recon.io import load_depth_map
 
@@ -102,9 +110,7 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
     per_frame, flickers, rows, prev = [], [], [], None
     for i in range(len(scan)):
         gt = scan.depth(i)
-        pred = load_depth_map(pred_dir, scan.frames[i].name)
-        if pred.shape != gt.shape:
-            pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
+        pred = on_gt_grid(load_depth_map(pred_dir, scan.frames[i].name), gt)
         if scale != 1.0:
             pred = pred * np.float32(scale)
         if align == "median":

@@ -117,18 +117,15 @@ def depth_table(scan: Scan, out_dir: str | Path, opts: TableOptions = TableOptio
 def covered_abs_rel(pred_dir: Path, scan: Scan, min_depth: float, max_depth: float) -> float:
     """Abs Rel on the pixels that have a prediction only (the protocol's Abs Rel counts holes as the
     lower bound): tells a sparse method's accuracy apart from its coverage."""
-    import cv2
     import numpy as np
 
-    from depth.metrics import depth_metrics
+    from depth.metrics import depth_metrics, on_gt_grid
     from recon.io import load_depth_map
 
     values = []
     for i in range(len(scan)):
         gt = scan.depth(i)
-        pred = load_depth_map(pred_dir, scan.frames[i].name)
-        if pred.shape != gt.shape:
-            pred = cv2.resize(pred, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_NEAREST)
+        pred = on_gt_grid(load_depth_map(pred_dir, scan.frames[i].name), gt)
         m = depth_metrics(pred, np.where(pred > 0, gt, 0).astype(np.float32), min_depth, max_depth)
         if m is not None:
             values.append(m["abs_rel"])
