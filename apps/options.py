@@ -73,6 +73,8 @@ def add_sfm(parser) -> None:
                    help="SIFT features per image")
     g.add_argument("--overlap", type=int, default=_default(SfMConfig, "sequential_overlap"), metavar="N",
                    help="sequential matching window")
+    g.add_argument("--no-loop-detection", action="store_true",
+                   help="sequential matching: do not also match far-apart frames that look alike (revisits)")
     c = parser.add_argument_group("SfM scale (default: normalised so the median scene depth is --target-depth)")
     x = c.add_mutually_exclusive_group()
     x.add_argument("--scale", type=float, default=None, metavar="FACTOR", help="metres per SfM unit")
@@ -243,7 +245,8 @@ def poses_config(args):
                             blur_ratio=args.blur_ratio, max_size=args.max_size),
         sfm=SfMConfig(mapper=args.mapper, fallback=not args.no_fallback, camera_model=args.camera_model,
                       matcher=args.matcher, deterministic=not args.parallel_mapping,
-                      max_num_features=args.features, sequential_overlap=args.overlap).validate(),
+                      max_num_features=args.features, sequential_overlap=args.overlap,
+                      loop_detection=not args.no_loop_detection).validate(),
         scale=ScaleConfig(factor=args.scale, known_distance=known, target_median_depth=args.target_depth))
 
 

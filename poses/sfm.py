@@ -21,7 +21,8 @@ undistorted frames). A recorded scan's own camera is
 the starting camera.
 
 Matching follows the input: all pairs for short clips and for photo collections (unordered,
-wide baselines) of up to `exhaustive_max` images, a window of neighbours for longer videos.
+wide baselines) of up to `exhaustive_max` images, a window of neighbours for longer videos, plus
+the far-apart frames that look alike (`loop_detection`, poses/retrieval.py: revisits).
 When a mapping registers fewer than `retry_below` of the frames, what a careful COLMAP user
 would try runs next (`mapping_plan`): the other mapper, a looser initial pair, the other
 camera model, all-pairs matching; the largest model wins (the first on a tie). The kept model
@@ -70,6 +71,8 @@ class SfMConfig:
     first_octave: int | None = None  # None: -1 (upsampled octave) for photos and below 600 px, else 0 (1.6x faster)
     matcher: str = "auto"  # auto: exhaustive for short clips and photo collections, else sequential
     sequential_overlap: int = 10  # each frame is matched with this many following frames
+    loop_detection: bool = True  # sequential matching: also match far-apart frames that look alike (retrieval.py)
+    loop_candidates: int = 3  # per frame, its most similar far-apart frames to verify
     exhaustive_below: int = 40  # clips with at most this many frames are matched all-pairs
     exhaustive_max: int = 300  # photo collections (and the last fallback) up to this many images: all pairs
     min_registered_fraction: float = 0.5  # a model with fewer frames is a failure
@@ -120,6 +123,7 @@ class SfMResult:
     camera: dict = field(default_factory=dict)  # the estimated camera, for the report
     parallax: float = 0.0  # homography_parallax of the matches
     matcher: str = ""  # "sequential" or "exhaustive" (the first matching)
+    loops: dict = field(default_factory=dict)  # loop detection: candidate and verified pairs, seconds
     distortion: dict = field(default_factory=dict)  # the distortion test: errors, gain, kept
 
 
@@ -175,9 +179,10 @@ def extract_features(image_dir: Path, image_names: list[str], database_path: Pat
     timings["extract"] = time.perf_counter() - t0
 
 
-def match_features(database_path: Path, matcher: str, config: SfMConfig, timings: dict[str, float]) -> None:
-    """Verified matches: all pairs, or each frame with its `sequential_overlap` followers; pairs already
-    in the database are kept, so all-pairs matching after sequential only adds the missing ones."""
+def match_features(database_path: Path, matcher: str, config: SfMConfig, timings: dict[str, float]) -> dict:
+    """Verified matches: all pairs, or each frame with its `sequential_overlap` followers (and, with
+    `loop_detection`, the far-apart frames that look alike); pairs already in the database are kept,
+    so all-pairs matching after sequential only adds the missing ones. Returns the loop figures."""
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(config.seed)
     matching = pycolmap.FeatureMatchingOptions()
@@ -185,6 +190,7 @@ def match_features(database_path: Path, matcher: str, config: SfMConfig, timings
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = config.seed
     t0 = time.perf_counter()
+    loops: dict = {}
     if matcher == "exhaustive":
         pycolmap.match_exhaustive(database_path, matching_options=matching, verification_options=verification,
                                   device=pycolmap.Device.cpu)
@@ -192,10 +198,52 @@ def match_features(database_path: Path, matcher: str, config: SfMConfig, timings
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = config.sequential_overlap
         pairing.quadratic_overlap = False
-        pairing.loop_detection = False  # needs a vocabulary tree file; all-pairs matching is the fallback instead
+        pairing.loop_detection = False  # COLMAP's needs a vocabulary-tree file: ours is match_loops
         pycolmap.match_sequential(database_path, matching_options=matching, pairing_options=pairing,
                                   verification_options=verification, device=pycolmap.Device.cpu)
+        if config.loop_detection:
+            loops = match_loops(database_path, config, matching, verification)
     timings["match"] = timings.get("match", 0.0) + time.perf_counter() - t0
+    return loops
+
+
+def match_loops(database_path: Path, config: SfMConfig, matching, verification) -> dict:
+    """Match the loop candidates of poses/retrieval.py (frames beyond the sequential window that look alike);
+    the pair list is kept beside the database (loop_pairs.txt, COLMAP's match-list format)."""
+    from poses.retrieval import find_loop_pairs
+
+    pycolmap = _pycolmap()
+    t0 = time.perf_counter()
+    db = pycolmap.Database.open(database_path)
+    try:
+        images = sorted(db.read_all_images(), key=lambda im: im.name)
+        descriptors = [np.asarray(db.read_descriptors(im.image_id).data) for im in images]
+    finally:
+        db.close()
+    pairs = find_loop_pairs(descriptors, config.sequential_overlap, config.loop_candidates, seed=config.seed)
+    pair_file = database_path.parent / "loop_pairs.txt"
+    rio.write_bytes_atomic(pair_file, "".join(f"{images[i].name} {images[j].name}\n" for i, j in pairs).encode())
+    if pairs:
+        imported = pycolmap.ImportedPairingOptions()
+        imported.match_list_path = str(pair_file)
+        pycolmap.match_image_pairs(database_path, matching_options=matching, pairing_options=imported,
+                                   verification_options=verification, device=pycolmap.Device.cpu)
+    verified = _verified_pairs(database_path, {(images[i].image_id, images[j].image_id) for i, j in pairs})
+    log.info("sfm: loop detection: %d of %d candidate pairs verified", verified, len(pairs))
+    return {"candidates": len(pairs), "verified": verified, "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def _verified_pairs(database_path: Path, pairs: set[tuple[int, int]]) -> int:
+    """How many of `pairs` (image ids) have a verified two-view geometry with inliers."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(database_path)
+    try:
+        ids, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    both = pairs | {(b, a) for a, b in pairs}
+    return sum(1 for pid, g in zip(ids, geometries)
+               if pycolmap.pair_id_to_image_pair(pid) in both and len(g.inlier_matches) > 0)
 
 
 def choose_matcher(config: SfMConfig, num_images: int, ordered: bool) -> str:
@@ -347,7 +395,7 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     n = len(image_names)
     extract_features(image_dir, image_names, database_path, config, timings, camera, ordered)
     matcher = choose_matcher(config, n, ordered)
-    match_features(database_path, matcher, config, timings)
+    loops = match_features(database_path, matcher, config, timings)
     parallax = _check_parallax(database_path, image_dir, work_dir, config, n)
     attempts: list[dict] = []
     best = _map_until_enough(database_path, image_dir, work_dir, mapping_plan(config), config,
@@ -377,7 +425,7 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
         log.warning("sfm: %d of %d frames did not register and are left out: %s", len(unregistered), n,
                     ", ".join(unregistered[:10]) + (" ..." if len(unregistered) > 10 else ""))
     return SfMResult(rec, image_dir, attempt.mapper, registered, unregistered, timings, work_dir, database_path,
-                     model_dir, attempts, camera_report, parallax, matcher, distortion)
+                     model_dir, attempts, camera_report, parallax, matcher, loops=loops, distortion=distortion)
 
 
 def _check_parallax(database_path: Path, image_dir: Path, work_dir: Path, config: SfMConfig, n: int) -> float:
@@ -524,7 +572,7 @@ def scan_from_sfm(result: SfMResult) -> Scan:
         scan.distortion = None  # a radial model whose distortion stayed at zero is a pinhole
     scan.metadata.metric_scale = False
     scan.metadata.extra["sfm"] = {
-        "mapper": result.mapper, "matcher": result.matcher, "registered": len(result.registered),
+        "mapper": result.mapper, "matcher": result.matcher, "loops": result.loops, "registered": len(result.registered),
         "unregistered": [Path(n).stem for n in result.unregistered], "attempts": result.attempts,
         "timings_s": {k: round(v, 2) for k, v in result.timings.items()}, "camera": result.camera,
         "distortion_test": result.distortion, "parallax": round(result.parallax, 4),

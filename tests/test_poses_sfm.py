@@ -152,6 +152,10 @@ def test_kitchen_200_frames_registration_and_ate(sevenscenes, tmp_path, mapper):
     m = pose_metrics(scan, open_scan(sevenscenes).select(0, 5, 200))
     assert m["registered"] >= 0.95
     assert m["ate_rmse"] <= 0.05
+    # The camera comes back to where it started: loop detection finds those pairs and most verify.
+    loops = report["sfm"]["loops"]
+    assert loops["candidates"] >= 100 and loops["verified"] >= 0.6 * loops["candidates"]
+    assert (tmp_path / "poses" / "colmap" / "loop_pairs.txt").read_text().count("\n") == loops["candidates"]
 
 
 # -- repeatable SfM, an honest camera, the matcher and the retries -----------------------------------
@@ -248,14 +252,14 @@ def test_run_and_poses_take_the_same_sfm_options():
 
     parser = build_parser()
     sfm_args = ["--fps", "5", "--camera-model", "SIMPLE_RADIAL", "--matcher", "exhaustive", "--mapper", "global",
-                "--stride", "2", "--parallel-mapping"]
+                "--stride", "2", "--parallel-mapping", "--no-loop-detection"]
     poses = parser.parse_args(["poses", "clip.mp4", "--out", "o", *sfm_args])
     run = parser.parse_args(["run", "clip.mp4", "--out", "o", *sfm_args])
     assert poses_config(poses) == poses_config(run)
     config = poses_config(run)
     assert config.ingest.fps == 5 and config.ingest.stride == 2
-    assert (config.sfm.camera_model, config.sfm.matcher, config.sfm.mapper, config.sfm.deterministic) == (
-        "SIMPLE_RADIAL", "exhaustive", "global", False)
+    assert (config.sfm.camera_model, config.sfm.matcher, config.sfm.mapper, config.sfm.deterministic,
+            config.sfm.loop_detection) == ("SIMPLE_RADIAL", "exhaustive", "global", False, False)
     defaults = [poses_config(parser.parse_args([cmd, "clip.mp4", "--out", "o"])) for cmd in ("poses", "run")]
     assert defaults[0] == defaults[1] == PosesConfig()
 

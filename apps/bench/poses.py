@@ -10,6 +10,8 @@ Four sections (`--sections`), each printed as a table with the issue's target be
                 registered, ATE, time end to end (target <= 60 s on 2 cores), identical runs.
   kitchen-video the same 200 frames as an mp4, through the whole pipeline as a plain video, with the
                 kitchen's poses given only to score it: depth and mesh after the Sim(3) alignment.
+  loops         loop detection on and off: rendered walks (`--walk-frames` at 10 fps, `--walks` seeds,
+                matched sequentially) and the kitchen's 200 frames: loop pairs, first attempt, ATE.
 
 Times are wall clock with the process CPU time beside them: on a shared machine the wall time is an
 upper bound (the load average is printed), CPU time shows what the work itself cost.
@@ -28,7 +30,7 @@ import numpy as np
 from apps.common import print_json
 
 KITCHEN = "../shared/data/7scenes-redkitchen"
-SECTIONS = ("rooms", "photos", "kitchen", "kitchen-video")
+SECTIONS = ("rooms", "photos", "kitchen", "kitchen-video", "loops")
 
 
 def add_arguments(parser):
@@ -38,6 +40,8 @@ def add_arguments(parser):
     parser.add_argument("--room-fps", type=float, default=10.0,
                         help="frame rate of the rendered walk: 40 frames at 10 fps are a 4 s, 1-2 m walk (default 10)")
     parser.add_argument("--photo-rooms", type=int, default=3, help="photo collections (seeds 0..N-1; default 3)")
+    parser.add_argument("--walks", type=int, default=3, help="loops: rendered walks (seeds 0..N-1; default 3)")
+    parser.add_argument("--walk-frames", type=int, default=150, help="loops: frames per walk, at 10 fps (default 150)")
     parser.add_argument("--runs", type=int, default=3, help="SfM runs per input for the repeatability check")
     parser.add_argument("--kitchen", default=KITCHEN, help=f"7-Scenes sequence (default {KITCHEN})")
     parser.add_argument("--keep", default=None, metavar="DIR", help="keep the outputs here instead of a temp folder")
@@ -69,7 +73,7 @@ def _pose_runs(source, gt, root: Path, runs: int, config) -> dict:
         poses.append({f.name: f.camera_to_world for f in scan.frames})
         rows.append({"registered": m["registered"], "frames": m["frames_used"], "ate_m": m["ate_rmse"],
                      "path_m": m["trajectory_length"], "wall_s": wall, "cpu_s": cpu,
-                     "attempts": report["sfm"]["attempts"], "camera": report["sfm"]["camera"],
+                     "attempts": report["sfm"]["attempts"], "loops": report["sfm"]["loops"], "camera": report["sfm"]["camera"],
                      "distortion_test": report["sfm"]["distortion_test"], "steps_s": report["timings_s"]})
     return {"runs": rows, "max_pose_difference": _max_difference(poses)}
 
@@ -128,6 +132,28 @@ def bench_kitchen(args, root: Path) -> dict:
                       PosesConfig(ingest=IngestConfig(stride=5, max_frames=200)))
 
 
+def bench_loops(args, root: Path) -> dict:
+    """Each input posed once with loop detection and once without."""
+    from poses.ingest import IngestConfig
+    from poses.sfm import PosesConfig, SfMConfig
+    from recon.readers import open_scan
+    from recon.synthetic.generate import SynthConfig, write_synthetic_scan
+
+    inputs = {}
+    for seed in range(args.walks):
+        folder = root / f"walk{seed}"
+        write_synthetic_scan(SynthConfig(seed=seed, frames=args.walk_frames, fps=10.0), folder / "scan", video=True)
+        inputs[f"walk {seed}"] = (folder / "scan" / "video.mp4", open_scan(folder / "scan"), IngestConfig(), folder)
+    if Path(args.kitchen).is_dir():
+        inputs["kitchen"] = (args.kitchen, open_scan(args.kitchen).select(0, 5, 200),
+                             IngestConfig(stride=5, max_frames=200), root / "kitchen-loops")
+    out = {}
+    for name, (source, gt, ingest, folder) in inputs.items():
+        out[name] = {f"loops {flag}": _pose_runs(source, gt, folder / f"loops-{flag}", 1, PosesConfig(
+            ingest=ingest, sfm=SfMConfig(loop_detection=flag == "on")))["runs"][0] for flag in ("on", "off")}
+    return out
+
+
 def bench_kitchen_video(args, root: Path) -> dict:
     """The kitchen's 200 frames as a plain mp4 through `Pipeline`, its poses (renamed to the video's frame
     names) given as --gt-poses only to score poses, depth and mesh."""
@@ -171,7 +197,7 @@ def run(args) -> int:
         sections = [s for s in sections if not s.startswith("kitchen")]
     summary = {"cpu_count": os.cpu_count(), "load_average_before": round(os.getloadavg()[0], 2)}
     runners = {"rooms": bench_rooms, "photos": bench_photos, "kitchen": bench_kitchen,
-               "kitchen-video": bench_kitchen_video}
+               "kitchen-video": bench_kitchen_video, "loops": bench_loops}
     with tempfile.TemporaryDirectory(prefix="bench-poses-") as tmp:
         root = Path(args.keep or tmp)
         root.mkdir(parents=True, exist_ok=True)
@@ -226,6 +252,8 @@ def print_tables(summary: dict) -> None:
         _print_kitchen(console, summary["kitchen"], load)
     if "kitchen-video" in summary:
         _print_video(console, summary["kitchen-video"])
+    if "loops" in summary:
+        _print_loops(console, summary["loops"], load)
 
 
 def _room_verdict(rooms: dict) -> str:
@@ -264,3 +292,23 @@ def _print_video(console, video: dict) -> None:
                   f"depth Abs Rel {depth.get('abs_rel', nan):.3f}, delta<1.25 {depth.get('a1', nan):.3f}; mesh "
                   f"F-score {mesh.get('fscore', nan):.3f} (acc {mesh.get('acc', nan):.3f} m, comp "
                   f"{mesh.get('comp', nan):.3f} m)")
+
+
+def _print_loops(console, loops: dict, load: str) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"loop detection on / off ({load})")
+    for col in ("input", "loop pairs (candidates / verified)", "first attempt (on / off)", "registered (on / off)",
+                "ATE / path (on / off)", "matching s (on / off)"):
+        table.add_column(col, justify="right")
+    for name, runs in loops.items():
+        on, off = runs["loops on"], runs["loops off"]
+        if "error" in on or "error" in off:
+            table.add_row(name, "failed", (on.get("error") or off.get("error"))[:60], "", "", "")
+            continue
+        pair = " / ".join
+        table.add_row(name, f"{on['loops'].get('candidates', 0)} / {on['loops'].get('verified', 0)}",
+                      pair(str(r["attempts"][0]["registered"]) for r in (on, off)), pair(_share(r) for r in (on, off)),
+                      pair(f"{r['ate_m'] / r['path_m']:.2%}" for r in (on, off)),
+                      pair(f"{r['steps_s'].get('match', 0):.1f}" for r in (on, off)))
+    console.print(table)
