@@ -233,17 +233,21 @@ def match_loops(database_path: Path, config: SfMConfig, matching, verification) 
     return {"candidates": len(pairs), "verified": verified, "seconds": round(time.perf_counter() - t0, 2)}
 
 
-def _verified_pairs(database_path: Path, pairs: set[tuple[int, int]]) -> int:
-    """How many of `pairs` (image ids) have a verified two-view geometry with inliers."""
+def two_view_geometries(database_path: Path) -> list[tuple[int, int, object]]:
+    """Every verified pair in the database as (image id, image id, pycolmap.TwoViewGeometry)."""
     pycolmap = _pycolmap()
     db = pycolmap.Database.open(database_path)
     try:
-        ids, geometries = db.read_two_view_geometries()
+        pair_ids, geometries = db.read_two_view_geometries()
     finally:
         db.close()
+    return [(*(int(i) for i in pycolmap.pair_id_to_image_pair(pid)), g) for pid, g in zip(pair_ids, geometries)]
+
+
+def _verified_pairs(database_path: Path, pairs: set[tuple[int, int]]) -> int:
+    """How many of `pairs` (image ids) have a verified two-view geometry with inliers."""
     both = pairs | {(b, a) for a, b in pairs}
-    return sum(1 for pid, g in zip(ids, geometries)
-               if pycolmap.pair_id_to_image_pair(pid) in both and len(g.inlier_matches) > 0)
+    return sum(1 for a, b, g in two_view_geometries(database_path) if (a, b) in both and len(g.inlier_matches) > 0)
 
 
 def choose_matcher(config: SfMConfig, num_images: int, ordered: bool) -> str:
@@ -356,21 +360,14 @@ def homography_parallax(database_path: Path) -> float | None:
     of max |log |eigenvalue|| of COLMAP's homography. Rooms filmed while walking score 0.02-0.05,
     a slow 3 s clip 0.007, a camera turning on a tripod 0.001. None when no pair matched.
     """
-    pycolmap = _pycolmap()
-    db = pycolmap.Database.open(database_path)
-    try:
-        pair_ids, geometries = db.read_two_view_geometries()
-    finally:
-        db.close()
     gaps, scores = [], []
-    for pair_id, geometry in zip(pair_ids, geometries):
+    for a, b, geometry in two_view_geometries(database_path):
         H = np.asarray(geometry.H, dtype=np.float64)
         det = np.linalg.det(H) if H.shape == (3, 3) and np.all(np.isfinite(H)) else 0.0
         if abs(det) < 1e-12:
             continue
         moduli = np.abs(np.linalg.eigvals(H / np.cbrt(det)))
-        a, b = pycolmap.pair_id_to_image_pair(pair_id)
-        gaps.append(abs(int(b) - int(a)))
+        gaps.append(abs(b - a))
         scores.append(float(np.max(np.abs(np.log(moduli)))))
     if not scores:
         return None
