@@ -120,6 +120,12 @@ def test_no_two_parts_of_a_scene_overlap():
     assert not table.contains(touching.probe_points(), 1e-4).any()
 
 
+def test_a_doorway_as_wide_as_the_shared_wall_allows_still_builds():
+    """Scene 1892720134 (training stream seed 800, room 127) leaves the door no slack: it once raised."""
+    scene = generate_scene(1892720134, texture_library())
+    assert scene.summary["layout"] == "two rooms with a doorway"
+
+
 def test_camera_moves_like_handheld_video_in_free_space():
     library = texture_library()
     for seed in range(4):

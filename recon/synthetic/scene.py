@@ -449,7 +449,8 @@ def _floor_plan(cfg: SceneConfig, rng) -> tuple[list[_Rect], str, tuple | None]:
         overlap = (max(0.0, y2), min(d, y2 + d2))
         door_w = min(rng.uniform(0.8, 1.0), overlap[1] - overlap[0] - 0.4)
         if door_w >= 0.7:
-            dy = rng.uniform(overlap[0] + 0.2, overlap[1] - 0.2 - door_w)
+            low = overlap[0] + 0.2  # a door as wide as the overlap allows leaves no slack (nor rounding)
+            dy = rng.uniform(low, max(low, overlap[1] - 0.2 - door_w))
             door_h = rng.uniform(2.0, 2.1)
             passage = (w, dy, w + t, dy + door_w, door_h)
             return ([_Rect(0, 0, w, d, h, 0), _Rect(w + t, y2, w + t + w2, y2 + d2, h, 1),
