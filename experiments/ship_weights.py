@@ -9,9 +9,12 @@ demo room, ICL-NUIM; never 7-Scenes):
 2. ESTM's mesh F-score beats the plane sweep's on every held-out scan;
 3. with --incumbent (the weights shipped today), ESTM beats the incumbent's ESTM on the mean Abs Rel
    and the mean mesh F-score over every held-out scan.
-Passing all three writes `<name>.pt`; otherwise nothing is written (exit 1). Stores float16
-weights (no optimiser state) with metadata: data, steps, hardware, training time, clip validation,
-the held-out figures and the rule results.
+Passing all three writes `<name>.pt`. Passing 1 and 3 but not 2 writes `<name>-preview.pt`: better
+than what ships, not yet the default, and kept in git so training can resume from it on a fresh
+machine (`recon train --init <name>-preview`; runs/ does not survive one: 7 h of `lite` training were
+lost that way). Otherwise nothing is written (exit 1). Stores float16 weights (no optimiser state)
+with metadata: data, steps, hardware, training time, clip validation, the held-out figures and the
+rule results.
 """
 from __future__ import annotations
 
@@ -23,6 +26,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+
+MESH_RULE = "beats plane sweep mesh on every scan"
 
 
 def rules(sel: dict, key: str, incumbent: str | None) -> dict[str, bool]:
@@ -40,7 +46,7 @@ def rules(sel: dict, key: str, incumbent: str | None) -> dict[str, bool]:
     mesh = {n: (sel[key][n]["mesh_fscore"], sel["planesweep"][n]["mesh_fscore"]) for n in heldout}
     print("held-out mesh F, ESTM / plane sweep: " + ", ".join(f"{n} {e:.3f} / {p:.3f}" for n, (e, p) in mesh.items()))
     verdict = {"beats plane sweep depth": est["abs_rel"] < ps["abs_rel"] and est["a1"] > ps["a1"],
-               "beats plane sweep mesh on every scan": all(e > p for e, p in mesh.values())}
+               MESH_RULE: all(e > p for e, p in mesh.values())}
     if incumbent:
         inc = f"{incumbent}:estm_m2"
         both = [n for n in heldout if n in sel.get(inc, {})]
@@ -71,9 +77,14 @@ def main(argv=None) -> int:
     verdict = rules(sel, key, args.incumbent)
     for rule, ok in verdict.items():
         print(f"  {'PASS' if ok else 'FAIL'}  {rule}")
+    name = args.name
     if not all(verdict.values()):
-        print("not shipped")
-        return 1
+        preview_ok = [ok for rule, ok in verdict.items() if rule != MESH_RULE]
+        if not args.incumbent or not all(preview_ok):  # a preview must beat what ships
+            print("not shipped")
+            return 1
+        name = f"{args.name}-preview"
+        print(f"the mesh rule fails: writing {name}, a preview that does not replace the default")
     recs = [json.loads(x) for x in (Path(args.run) / "log.jsonl").read_text().splitlines() if x.strip()]
     val = [r for r in recs if r["kind"] == "val"]
     meta = dict(ck.metadata)
@@ -82,7 +93,7 @@ def main(argv=None) -> int:
                                 "rules": verdict,
                                 "selection": "held-out synthetic rooms, the demo room and ICL-NUIM; never 7-Scenes"},
                  "source_checkpoint": str(args.checkpoint)})
-    out = save_checkpoint(WEIGHTS_DIR / f"{args.name}.pt", build_model(ck), ck.config, meta, fp16=True)
+    out = save_checkpoint(WEIGHTS_DIR / f"{name}.pt", build_model(ck), ck.config, meta, fp16=True)
     print(f"shipped {out} ({out.stat().st_size / 1e6:.2f} MB, float16)")
     return 0
 

@@ -56,6 +56,20 @@ def test_colmap_text_model_and_distortion(reference, tmp_path):
     assert np.allclose(scan.camera_to_world, reference.camera_to_world, atol=1e-6)
 
 
+def test_colmap_model_with_a_relative_image_folder_reads_its_images(reference, tmp_path, monkeypatch):
+    """SfM hands its model over with the image folder as given (relative to the working directory):
+    the frames must not be resolved against that folder a second time (recon bench poses --keep runs/x)."""
+    import pycolmap
+
+    from recon.readers.colmap import find_model, scan_from_reconstruction
+
+    WRITERS["colmap"](reference, tmp_path)
+    monkeypatch.chdir(tmp_path)
+    model = find_model(tmp_path).relative_to(tmp_path)
+    scan = scan_from_reconstruction(pycolmap.Reconstruction(str(model)), tmp_path.relative_to(tmp_path) / "images")
+    assert np.abs(scan.image(0).astype(int) - reference.image(0)).mean() == 0
+
+
 def test_nerfstudio_distortion_is_undone(reference, tmp_path):
     """A smooth pattern distorted with k1 reads back close to the pinhole original."""
     import cv2

@@ -70,6 +70,7 @@ def scan_from_reconstruction(reconstruction, image_dir: Path, source_format: str
 
     All images must share one camera, as a video's frames do. Frames are ordered by image name.
     """
+    image_dir = Path(image_dir).resolve()  # frames live under it; a relative one would be joined twice
     images = sorted((im for im in reconstruction.images.values() if im.has_pose), key=lambda im: im.name)
     if not images:
         raise ScanFormatError(f"{image_dir}: the COLMAP model has no registered images")
