@@ -57,7 +57,7 @@ def add_sfm(parser) -> None:
                    help="auto: all pairs for short clips and photo folders, neighbours in order for longer videos "
                         "(default %(default)s)")
     g.add_argument("--parallel-mapping", action="store_true",
-                   help="map on all cores: faster, but poses differ slightly from run to run")
+                   help="match and map on all cores: faster, but poses can differ from run to run")
     g.add_argument("--fps", type=float, default=_default(IngestConfig, "fps"), metavar="F",
                    help="videos: keep about F frames per second, the sharpest of each interval (default: all)")
     g.add_argument("--min-motion", type=float, default=_default(IngestConfig, "min_motion_px"), metavar="PX",

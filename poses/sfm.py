@@ -77,8 +77,8 @@ class SfMConfig:
     exhaustive_max: int = 300  # photo collections (and the last fallback) up to this many images: all pairs
     min_registered_fraction: float = 0.5  # a model with fewer frames is a failure
     min_parallax: float = 0.003  # homography_parallax below this: the camera only turned, refuse before mapping
-    num_threads: int = -1  # extraction and matching (-1: all cores); their results do not depend on it
-    deterministic: bool = True  # mappers on one thread: identical poses every run (see docs/poses.md for the cost)
+    num_threads: int = -1  # extraction (-1: all cores; its result does not depend on it), and the rest unless deterministic
+    deterministic: bool = True  # matching and mappers on one thread: identical poses every run (docs/poses.md: cost)
     seed: int = 0  # every RANSAC and mapper draw
 
     def validate(self) -> "SfMConfig":
@@ -186,7 +186,7 @@ def match_features(database_path: Path, matcher: str, config: SfMConfig, timings
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(config.seed)
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = config.num_threads
+    matching.num_threads = _ordered_threads(config)  # two threads lost 35-52 matches of a pair in 2 of 30 runs
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = config.seed
     t0 = time.perf_counter()
@@ -273,14 +273,15 @@ def _first_octave(image_dir: Path, image_names: list[str], ordered: bool) -> int
     return -1 if not ordered or first is None or max(first.shape) < 600 else 0
 
 
-def _mapper_threads(config: SfMConfig) -> int:
+def _ordered_threads(config: SfMConfig) -> int:
+    """Threads for the steps whose result depends on the thread count (matching, mapping)."""
     return 1 if config.deterministic else config.num_threads
 
 
 def _incremental_options(attempt: MappingAttempt, config: SfMConfig):
     pycolmap = _pycolmap()
     options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = options.mapper.num_threads = _mapper_threads(config)
+    options.num_threads = options.mapper.num_threads = _ordered_threads(config)
     options.random_seed = options.mapper.random_seed = options.triangulation.random_seed = config.seed
     options.ba_refine_extra_params = attempt.distortion
     # Video frames overlap heavily: fewer, shorter global bundle adjustments lose no accuracy
@@ -302,11 +303,11 @@ def _incremental_options(attempt: MappingAttempt, config: SfMConfig):
 def _global_options(attempt: MappingAttempt, config: SfMConfig):
     pycolmap = _pycolmap()
     options = pycolmap.GlobalPipelineOptions()
-    options.num_threads = options.mapper.num_threads = _mapper_threads(config)
+    options.num_threads = options.mapper.num_threads = _ordered_threads(config)
     options.random_seed = options.mapper.random_seed = config.seed
     options.mapper.rotation_averaging.random_seed = options.mapper.global_positioning.random_seed = config.seed
     options.mapper.bundle_adjustment.refine_extra_params = attempt.distortion
-    options.mapper.bundle_adjustment.ceres.solver_options.num_threads = _mapper_threads(config)
+    options.mapper.bundle_adjustment.ceres.solver_options.num_threads = _ordered_threads(config)
     return options
 
 
@@ -484,7 +485,7 @@ def distortion_test(rec, config: SfMConfig, timings: dict[str, float]) -> tuple[
         options = pycolmap.BundleAdjustmentOptions()
         options.refine_extra_params = radial
         options.print_summary = False
-        options.ceres.solver_options.num_threads = _mapper_threads(config)
+        options.ceres.solver_options.num_threads = _ordered_threads(config)
         pycolmap.bundle_adjustment(model, options)
         models[radial], errors[radial] = model, ring_errors(model)
     (inner0, outer0), (inner1, outer1) = errors[False], errors[True]
