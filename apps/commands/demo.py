@@ -15,10 +15,9 @@ DEMO_SIZE = (320, 240)
 
 
 def register(subparsers):
-    subparsers.add_parser("demo", help="run the whole pipeline on the embedded synthetic room",
-                          description="Reconstruct the embedded example (a synthetic room video with supplied "
-                                      "poses and exact ground truth), print a summary, write report.html. "
-                                      "`--poses colmap` takes the video through SfM instead.",
+    about = ("Reconstruct the embedded example (a synthetic room video with supplied poses and exact ground "
+             "truth), print a summary, write report.html. `--poses colmap` takes the video through SfM instead.")
+    subparsers.add_parser("demo", help="run the whole pipeline on the embedded synthetic room", description=about,
                           arguments=add_arguments)
 
 

@@ -7,11 +7,11 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers):
-    subparsers.add_parser(
-        "synth", help="render a synthetic room (images, exact depth, poses, gt_mesh.ply)",
-        description="Generate a procedural room from a seed, walk a handheld-like camera through it and "
-                    "write a canonical scan with exact depth and the ground-truth mesh; optionally also an "
-                    ".mp4 video with its poses as a nerfstudio transforms.json.", arguments=add_arguments)
+    about = ("Generate a procedural room from a seed, walk a handheld-like camera through it and write a "
+             "canonical scan with exact depth and the ground-truth mesh; optionally also an .mp4 video with "
+             "its poses as a nerfstudio transforms.json.")
+    subparsers.add_parser("synth", help="render a synthetic room (images, exact depth, poses, gt_mesh.ply)",
+                          description=about, arguments=add_arguments)
 
 
 def add_arguments(p) -> None:

@@ -31,10 +31,10 @@ class Material:
 class Pose2D:
     """Placement of an object on the floor plan: rotation about the vertical axis, then translation."""
 
-    x: float = 0.0
+    x: float = 0.0  # metres, room frame (z up)
     y: float = 0.0
     z: float = 0.0
-    yaw: float = 0.0
+    yaw: float = 0.0  # radians about +z
 
     @property
     def rotation(self) -> np.ndarray:
