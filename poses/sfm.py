@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -479,16 +480,21 @@ def distortion_test(rec, config: SfMConfig, timings: dict[str, float]) -> tuple[
     """
     pycolmap = _pycolmap()
     t0 = time.perf_counter()
-    models, errors = {}, {}
-    for radial in (False, True):
+
+    def adjusted(radial: bool):
         model = pycolmap.Reconstruction(rec)  # the database camera is SIMPLE_RADIAL with k held at 0
         options = pycolmap.BundleAdjustmentOptions()
         options.refine_extra_params = radial
         options.print_summary = False
         options.ceres.solver_options.num_threads = _ordered_threads(config)
         pycolmap.bundle_adjustment(model, options)
-        models[radial], errors[radial] = model, ring_errors(model)
-    (inner0, outer0), (inner1, outer1) = errors[False], errors[True]
+        return model, ring_errors(model)
+
+    # Two independent adjustments of two copies, each on its own thread count: side by side (pycolmap
+    # releases the GIL) they give the same models as one after the other, in about half the time.
+    with ThreadPoolExecutor(2) as pool:
+        models, errors = zip(*pool.map(adjusted, (False, True)))  # indexed by radial: False 0, True 1
+    (inner0, outer0), (inner1, outer1) = errors
     gain = 1.0 - outer1 / outer0 if outer0 > 0 else 0.0
     inner_gain = 1.0 - inner1 / inner0 if inner0 > 0 else 0.0
     kept = bool(gain >= config.min_distortion_gain and gain >= RING_CONTRAST * max(inner_gain, 0.0))
