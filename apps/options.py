@@ -75,6 +75,9 @@ def add_sfm(parser) -> None:
                    help="sequential matching window")
     g.add_argument("--no-loop-detection", action="store_true",
                    help="sequential matching: do not also match far-apart frames that look alike (revisits)")
+    g.add_argument("--no-motion-check", action="store_true",
+                   help="videos: keep a block of frames posed away from the path around it (by default such "
+                        "frames, a repeating texture matched one repeat away, are left unposed)")
     c = parser.add_argument_group("SfM scale (default: normalised so the median scene depth is --target-depth)")
     x = c.add_mutually_exclusive_group()
     x.add_argument("--scale", type=float, default=None, metavar="FACTOR", help="metres per SfM unit")
@@ -246,7 +249,7 @@ def poses_config(args):
         sfm=SfMConfig(mapper=args.mapper, fallback=not args.no_fallback, camera_model=args.camera_model,
                       matcher=args.matcher, deterministic=not args.parallel_mapping,
                       max_num_features=args.features, sequential_overlap=args.overlap,
-                      loop_detection=not args.no_loop_detection).validate(),
+                      loop_detection=not args.no_loop_detection, motion_check=not args.no_motion_check).validate(),
         scale=ScaleConfig(factor=args.scale, known_distance=known, target_median_depth=args.target_depth))
 
 

@@ -8,9 +8,10 @@ that costs). Three things make COLMAP vary from run to run, and each is pinned h
     thumbnails (one thread, a fraction of a second) registers every image in name order;
     the real, multi-threaded extraction then fills in features under those ids.
   - random draws: every RANSAC, the mapper and the global mapper's steps get `seed`.
-  - threads in mapping: bundle adjustment and the global mapper sum in thread order, so with
-    `deterministic` the mappers run on one thread (extraction and matching stay parallel:
-    their results per image and per pair do not depend on the thread count).
+  - threads: bundle adjustment and the global mapper sum in thread order, and matching on two
+    threads returned a subset of a pair's matches in 2 of 30 runs, so with `deterministic` matching
+    and the mappers run on one thread (extraction stays parallel: its result per image does not
+    depend on the thread count).
 
 The camera is one shared pinhole unless the data shows distortion (`camera_model="auto"`):
 mapping keeps the distortion at zero, then `distortion_test` bundle-adjusts the model with and
@@ -25,7 +26,8 @@ wide baselines) of up to `exhaustive_max` images, a window of neighbours for lon
 the far-apart frames that look alike (`loop_detection`, poses/retrieval.py: revisits).
 When a mapping registers fewer than `retry_below` of the frames, what a careful COLMAP user
 would try runs next (`mapping_plan`): the other mapper, a looser initial pair, the other
-camera model, all-pairs matching; the largest model wins (the first on a tie). The kept model
+camera model, all-pairs matching; the largest model wins (the first on a tie). In a video, a block
+of frames posed away from the path around it is left unposed (`drop_displaced_blocks`). The kept model
 becomes a canonical scan with `metadata.metric_scale = False`; distortion, when kept, stays on
 the scan, so saving it writes undistorted pinhole images (same K).
 
@@ -45,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from poses.ingest import IngestConfig, ingest
+from poses.motion import displaced_blocks
 from poses.scale import ScaleConfig, resolve_scale
 from recon import io as rio
 from recon.errors import ReconError
@@ -80,6 +83,7 @@ class SfMConfig:
     min_parallax: float = 0.003  # homography_parallax below this: the camera only turned, refuse before mapping
     num_threads: int = -1  # extraction (-1: all cores; its result does not depend on it), and the rest unless deterministic
     deterministic: bool = True  # matching and mappers on one thread: identical poses every run (docs/poses.md: cost)
+    motion_check: bool = True  # videos: leave unposed a block of frames posed away from the path (poses/motion.py)
     seed: int = 0  # every RANSAC and mapper draw
 
     def validate(self) -> "SfMConfig":
@@ -126,6 +130,7 @@ class SfMResult:
     matcher: str = ""  # "sequential" or "exhaustive" (the first matching)
     loops: dict = field(default_factory=dict)  # loop detection: candidate and verified pairs, seconds
     distortion: dict = field(default_factory=dict)  # the distortion test: errors, gain, kept
+    displaced: list[str] = field(default_factory=list)  # registered away from the video's path, left unposed
 
 
 def _pycolmap():
@@ -412,19 +417,40 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     distortion = {}
     if config.camera_model == "auto" and not attempt.distortion:
         rec, distortion = distortion_test(rec, config, timings)
-        if distortion["kept"]:
-            rec.write(str(model_dir))
+    displaced = drop_displaced_blocks(rec, image_names) if ordered and config.motion_check else []
+    if distortion.get("kept") or displaced:
+        rec.write(str(model_dir))
     timings["sfm_total"] = time.perf_counter() - t_start
     registered = sorted(im.name for im in rec.images.values() if im.has_pose)
     unregistered = sorted(set(image_names) - set(registered))
     cam = next(iter(rec.cameras.values()))
     camera_report = {"model": cam.model_name, "width": cam.width, "height": cam.height,
                      "params": [float(p) for p in cam.params], "from_capture": camera is not None}
-    if unregistered:
-        log.warning("sfm: %d of %d frames did not register and are left out: %s", len(unregistered), n,
-                    ", ".join(unregistered[:10]) + (" ..." if len(unregistered) > 10 else ""))
+    missed = [name for name in unregistered if name not in displaced]
+    if missed:
+        log.warning("sfm: %d of %d frames did not register and are left out: %s", len(missed), n,
+                    ", ".join(missed[:10]) + (" ..." if len(missed) > 10 else ""))
     return SfMResult(rec, image_dir, attempt.mapper, registered, unregistered, timings, work_dir, database_path,
-                     model_dir, attempts, camera_report, parallax, matcher, loops=loops, distortion=distortion)
+                     model_dir, attempts, camera_report, parallax, matcher, loops=loops, distortion=distortion,
+                     displaced=displaced)
+
+
+def drop_displaced_blocks(rec, image_names: list[str]) -> list[str]:
+    """Unpose the blocks of frames posed away from the video's path (poses/motion.py); `image_names` in
+    capture order. Returns the names left unposed, with one warning."""
+    order = {name: i for i, name in enumerate(image_names)}
+    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: order[im.name])
+    index = np.array([order[im.name] for im in images])
+    centres = np.array([im.projection_center() for im in images]).reshape(-1, 3)
+    dropped = [images[p] for block in displaced_blocks(index, centres) for p in block]
+    for im in dropped:
+        rec.deregister_frame(im.frame_id)
+    names = [im.name for im in dropped]
+    if names:
+        log.warning("sfm: %d frames were posed away from the path of the frames around them (a repeating texture "
+                    "matched one repeat away?) and are left out: %s", len(names),
+                    ", ".join(names[:10]) + (" ..." if len(names) > 10 else ""))
+    return names
 
 
 def _check_parallax(database_path: Path, image_dir: Path, work_dir: Path, config: SfMConfig, n: int) -> float:
@@ -578,6 +604,7 @@ def scan_from_sfm(result: SfMResult) -> Scan:
     scan.metadata.extra["sfm"] = {
         "mapper": result.mapper, "matcher": result.matcher, "loops": result.loops, "registered": len(result.registered),
         "unregistered": [Path(n).stem for n in result.unregistered], "attempts": result.attempts,
+        "displaced": [Path(n).stem for n in result.displaced],
         "timings_s": {k: round(v, 2) for k, v in result.timings.items()}, "camera": result.camera,
         "distortion_test": result.distortion, "parallax": round(result.parallax, 4),
         "colmap_dir": str(result.work_dir), "model_dir": str(result.model_dir), **model_statistics(result.reconstruction)}
