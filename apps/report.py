@@ -155,6 +155,7 @@ def sfm_section(scan) -> dict | None:
     if not sfm:
         return None
     ingest = scan.metadata.extra.get("ingest", {})
+    displaced = sfm.get("displaced") or []
     rows = [("mapper", sfm.get("mapper"), "the pycolmap mapper whose model was kept"),
             ("frames posed", f"{sfm.get('registered')} of {ingest.get('kept', sfm.get('registered'))}",
              "frames with a pose (of the frames SfM was given)"),
@@ -166,7 +167,8 @@ def sfm_section(scan) -> dict | None:
             ("parallax", sfm.get("parallax"), "median homography parallax of the matched pairs")]
     return {"rows": [{"label": k, "value": "n/a" if v is None else v, "help": h} for k, v, h in rows],
             "timings": [(k, _seconds(v)) for k, v in (sfm.get("timings_s") or {}).items()],
-            "unregistered": ", ".join(sfm.get("unregistered") or []),
+            "unregistered": ", ".join(n for n in sfm.get("unregistered") or [] if n not in displaced),
+            "displaced": ", ".join(displaced),
             "tracks": track_length_plot(sfm.get("track_length_histogram") or {})}
 
 

@@ -10,9 +10,10 @@ import pytest
 import trimesh
 
 from apps.pipeline import InputConfig, Pipeline, RunConfig
-from apps.report import (color_scale, decimated, format_value, frustum_lines, metric_tables, summary_cards,
-                         write_report)
+from apps.report import (color_scale, decimated, format_value, frustum_lines, metric_tables, sfm_section,
+                         summary_cards, write_report)
 from recon.scan import Intrinsics
+from tests.fixtures.box_room import box_room_scan
 
 
 def test_figures_are_rounded_with_units():
@@ -96,3 +97,12 @@ def test_report_of_a_run_without_ground_truth(plain_run):
     assert names == ["mesh", "camera path", "keyframe cameras", "keyframes"]
     assert len(figure["data"][3]["text"]) == keyframes
     assert figure["layout"]["scene"]["xaxis"]["title"]["text"] == "x (units)"
+
+
+def test_sfm_section_tells_displaced_frames_from_unregistered_ones():
+    scan = box_room_scan(n_frames=4)
+    scan.metadata.extra["sfm"] = {"mapper": "incremental", "registered": 5, "unregistered": ["f3", "f7", "f8"],
+                                  "displaced": ["f7", "f8"], "track_length_histogram": {"2": 3, "3": 1}}
+    section = sfm_section(scan)
+    assert section["unregistered"] == "f3" and section["displaced"] == "f7, f8"
+    assert dict((r["label"], r["value"]) for r in section["rows"])["frames posed"] == "5 of 5"
