@@ -2,17 +2,18 @@
 
 `ClipDataset` indexes clips of a finite list of scans (random access, shuffling);
 `StreamingClips` draws clips from any iterable of scans (e.g. the synthetic-scene
-generator), so training can consume scenes as they are produced.
+generator), so training can consume scenes as they are produced; given a function of the
+data-loader worker's index instead, each worker draws its own stream.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch.utils.data import Dataset, IterableDataset
+from torch.utils.data import Dataset, IterableDataset, default_collate, get_worker_info
 
 from recon.errors import ReconError
 from recon.scan import Scan
@@ -128,15 +129,24 @@ class ClipDataset(Dataset):
 
 class StreamingClips(IterableDataset):
     """Clips drawn from an iterable of scans as it yields them (every clip of each scan, in order).
+
+    `scans` is the iterable, or a picklable function of the data-loader worker's index (0 without
+    workers) returning that worker's iterable, so workers do not all yield the same clips.
     `describe` says what the stream is, for checkpoint metadata."""
 
-    def __init__(self, scans: Iterable[Scan], opts: ClipOptions = ClipOptions(), seed: int = 0,
-                 describe: dict | None = None):
+    def __init__(self, scans: Iterable[Scan] | Callable[[int], Iterable[Scan]], opts: ClipOptions = ClipOptions(),
+                 seed: int = 0, describe: dict | None = None):
         self.scans, self.opts, self.seed, self.about = scans, opts, seed, dict(describe or {})
 
     def __iter__(self) -> Iterator[dict]:
-        gen = torch.Generator().manual_seed(self.seed)
-        for scan in self.scans:
+        worker = get_worker_info()
+        shard = worker.id if worker is not None else 0
+        if not callable(self.scans) and worker is not None and worker.num_workers > 1:
+            raise ReconError("streamed training clips with several loader workers need a stream per worker "
+                             "(a function of the worker's index), or every worker yields the same clips")
+        scans = self.scans(shard) if callable(self.scans) else self.scans
+        gen = torch.Generator().manual_seed(self.seed + 1_000_003 * shard)
+        for scan in scans:
             scan.validate()
             for start in _clip_starts(scan, self.opts):
                 yield make_clip(scan, start, self.opts, gen)
@@ -144,3 +154,21 @@ class StreamingClips(IterableDataset):
     def describe(self) -> dict:
         return {"stream": type(self.scans).__name__, **self.about, "clip_length": self.opts.clip_length,
                 "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height]}
+
+
+
+class ShapeBatches(IterableDataset):
+    """Batches of `batch_size` equally shaped clips from a stream of clips (a portrait clip and a landscape
+    one cannot share a batch): clips wait in one bucket per shape until theirs is full."""
+
+    def __init__(self, clips: IterableDataset, batch_size: int):
+        self.clips, self.batch_size = clips, batch_size
+
+    def __iter__(self) -> Iterator[dict]:
+        buckets: dict[tuple, list[dict]] = {}
+        for clip in self.clips:
+            bucket = buckets.setdefault(tuple(clip["images"].shape), [])
+            bucket.append(clip)
+            if len(bucket) == self.batch_size:
+                yield default_collate(bucket)
+                bucket.clear()

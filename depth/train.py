@@ -32,7 +32,7 @@ from recon.errors import ReconError
 
 from .checkpoint import load_checkpoint, load_weights, save_checkpoint
 from .config import ESTConfig, get_config
-from .data import resize_clip
+from .data import ShapeBatches, resize_clip
 from .device import describe_device, resolve_device
 from .loss import LOSSES, multi_stage_loss
 from .model import ESTNet
@@ -311,8 +311,15 @@ def _loaders(trainer: Trainer, train_data, val_data) -> tuple[DataLoader, Distri
     sampler = (DistributedSampler(train_data, trainer.world, trainer.rank, shuffle=True, seed=opts.seed)
                if trainer.world > 1 and not streamed else None)
     shuffle = sampler is None and not streamed
-    loader = DataLoader(train_data, opts.batch_size, shuffle=shuffle, sampler=sampler, num_workers=opts.num_workers,
-                        generator=torch.Generator().manual_seed(opts.seed) if shuffle else None)
+    # CUDA cannot be used in forked workers (the synthetic renderer casts rays on the GPU where Open3D is missing)
+    context = "spawn" if opts.num_workers and trainer.device.type == "cuda" else None
+    if streamed and opts.batch_size > 1:  # streams mix orientations: batch clips of one shape together
+        loader = DataLoader(ShapeBatches(train_data, opts.batch_size), None, num_workers=opts.num_workers,
+                            multiprocessing_context=context)
+    else:
+        loader = DataLoader(train_data, opts.batch_size, shuffle=shuffle, sampler=sampler,
+                            num_workers=opts.num_workers, multiprocessing_context=context,
+                            generator=torch.Generator().manual_seed(opts.seed) if shuffle else None)
     return loader, sampler, DataLoader(val_data, 1) if val_data is not None else None
 
 

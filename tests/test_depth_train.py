@@ -4,7 +4,7 @@ import torch
 
 from depth.checkpoint import load_checkpoint
 from depth.config import TINY
-from depth.data import ClipDataset, ClipOptions, StreamingClips
+from depth.data import ClipDataset, ClipOptions, ShapeBatches, StreamingClips
 from recon.plane_scene import plane_scan
 from depth.train import TrainOptions, train
 from recon.errors import ReconError
@@ -36,6 +36,32 @@ def test_clips_shapes_augmentation_and_streaming():
     assert len(streamed) == 3 + 2
     with pytest.raises(ReconError, match="no training clips"):
         ClipDataset([scan.subset(range(4))], CLIP)
+
+
+def _two_plane_scans(shard):
+    """Loader worker `shard`'s stream: rooms of its own."""
+    return (plane_scan(5, 96, 64, step=0.08, seed=10 * shard + k) for k in range(2))
+
+
+def test_loader_workers_stream_clips_of_their_own():
+    clips = list(torch.utils.data.DataLoader(StreamingClips(_two_plane_scans, CLIP), batch_size=None, num_workers=2))
+    alone = list(StreamingClips(_two_plane_scans, CLIP))  # no workers: shard 0's stream
+    assert len(clips) == 4 and len(alone) == 2
+    assert torch.equal(clips[0]["images"], alone[0]["images"])  # workers interleave: shard 0, 1, 0, 1
+    assert not torch.equal(clips[0]["images"], clips[1]["images"])
+    assert not torch.equal(clips[1]["images"], clips[3]["images"])
+    shared = StreamingClips(iter([plane_scan(5, 96, 64, step=0.08)]), CLIP)
+    with pytest.raises(ReconError, match="a stream per worker"):
+        list(torch.utils.data.DataLoader(shared, batch_size=None, num_workers=2))
+
+
+def test_shape_batches_keep_portrait_and_landscape_apart():
+    scans = [plane_scan(5, 96, 64, step=0.08, seed=1), plane_scan(5, 64, 96, step=0.08, seed=2),
+             plane_scan(5, 96, 64, step=0.08, seed=3), plane_scan(5, 64, 96, step=0.08, seed=4),
+             plane_scan(5, 96, 64, step=0.08, seed=5)]
+    batches = list(ShapeBatches(StreamingClips(iter(scans), CLIP), 2))
+    assert [tuple(b["images"].shape[-2:]) for b in batches] == [(64, 96), (96, 64)]  # the fifth clip waits
+    assert all(b["images"].shape[0] == 2 and b["K"].shape == (2, 3, 3) for b in batches)
 
 
 def _overfit(out_dir, steps):

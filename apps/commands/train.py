@@ -82,7 +82,8 @@ def add_arguments(p) -> None:
     run_.add_argument("--compile", action="store_true", help="torch.compile the model")
     run_.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     run_.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
-    run_.add_argument("--workers", type=int, default=0, help="data loader worker processes")
+    run_.add_argument("--workers", type=int, default=0,
+                      help="data loader worker processes (with --synthetic each renders rooms of its own)")
     p.set_defaults(func=run)
 
 
@@ -127,6 +128,18 @@ def stream_seed(args: argparse.Namespace, rank: int) -> int:
     return int(np.random.SeedSequence([args.seed, rank, step]).generate_state(1)[0] & 0x3FFFFFFF)
 
 
+def training_stream(seed: int, depth_range: tuple[float, float], shard: int):
+    """Loader worker `shard`'s synthetic stream: shard 0 (also the only one without workers) draws from `seed`
+    itself, every other worker from a seed of its own, so workers render different rooms."""
+    import numpy as np
+
+    from recon.synthetic import iter_training_mix
+
+    if shard:
+        seed = int(np.random.SeedSequence([seed, 1 << 20, shard]).generate_state(1)[0] & 0x3FFFFFFF)
+    return iter_training_mix(seed, depth_range)
+
+
 def _data(args: argparse.Namespace, cfg):
     from depth.data import ClipDataset, ClipOptions, StreamingClips
     from recon.errors import ReconError
@@ -145,12 +158,13 @@ def _data(args: argparse.Namespace, cfg):
     if not args.synthetic:
         val = ClipDataset(scans(args.val), plain) if args.val else None
         return ClipDataset(scans(args.scans), clip, seed=args.seed), val
+    import functools
     import itertools
 
     from recon.synthetic import iter_training_mix
 
     rank = int(os.environ.get("RANK", "0"))
-    stream = iter_training_mix(stream_seed(args, rank), tuple(args.depth_range))
+    stream = functools.partial(training_stream, stream_seed(args, rank), tuple(args.depth_range))
     if args.val:
         val = ClipDataset(scans(args.val), plain)
     else:
@@ -158,7 +172,8 @@ def _data(args: argparse.Namespace, cfg):
         val = ClipDataset(list(itertools.islice(held_out, VAL_CLIPS)), plain)
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
         "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
-        "depth_range": list(args.depth_range)}), val
+        "depth_range": list(args.depth_range),
+        **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 
 def run(args: argparse.Namespace) -> int:

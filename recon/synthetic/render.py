@@ -1,8 +1,8 @@
-"""CPU renderer: Open3D ray casting for exact depth, numpy texturing and Lambertian shading.
+"""Renderer: exact ray-cast depth, numpy texturing and Lambertian shading.
 
-All rays of a frame are cast at once through `open3d.t.geometry.RaycastingScene`.
-Ray directions are built with a camera-frame z of exactly 1, so the hit distance
-Open3D returns (in units of the direction's length) *is* the depth along the
+All rays of a frame are cast at once (`raycast.py`: Open3D's `RaycastingScene` where Open3D is
+installed, a torch caster on CUDA or CPU elsewhere). Ray directions are built with a camera-frame z of exactly 1, so the hit distance
+the caster returns (in units of the direction's length) *is* the depth along the
 optical axis. Color comes from the hit triangle: its barycentric coordinates
 drive a precomputed affine map to texel coordinates, the mip level follows the
 pixel's footprint on the surface, and a single gather reads the texel from the
@@ -14,12 +14,11 @@ lookup table.
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
 
 from recon.geometry import pixel_rays
 from recon.scan import Intrinsics
 
+from .raycast import make_raycaster
 from .scene import Scene
 from .textures import TextureLibrary, linear_to_srgb
 
@@ -40,12 +39,10 @@ def _tone_lut() -> np.ndarray:
 class Renderer:
     """Renders color and z-depth of a `Scene` from any camera-to-world pose (OpenCV axes)."""
 
-    def __init__(self, scene: Scene, library: TextureLibrary, shadows: bool = True):
+    def __init__(self, scene: Scene, library: TextureLibrary, shadows: bool = True, raycaster: str = "auto"):
+        """`raycaster`: 'open3d', 'torch' or 'auto' (`raycast.make_raycaster`)."""
         self.scene, self.library, self.shadows = scene, library, shadows
-        verts = scene.vertices.reshape(-1, 3).astype(np.float32)
-        tris = np.arange(len(verts), dtype=np.uint32).reshape(-1, 3)
-        self._raycaster = o3d.t.geometry.RaycastingScene()
-        self._raycaster.add_triangles(o3c.Tensor(verts), o3c.Tensor(tris))
+        self._raycaster = make_raycaster(scene.vertices, raycaster)
         self._face_table, self._face_texture = self._per_face_tables()
         self._rays_cam: dict[Intrinsics, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._lut = _tone_lut()
@@ -82,12 +79,8 @@ class Renderer:
         rot = camera_to_world[:3, :3].astype(np.float32)
         # Rotating each component separately avoids a BLAS call (slow on small inner dimensions).
         dirs = np.stack([rot[k, 0] * x + rot[k, 1] * y + rot[k, 2] for k in range(3)])
-        rays = np.empty((len(x), 6), np.float32)
-        rays[:, :3] = camera_to_world[:3, 3].astype(np.float32)
-        rays[:, 3:] = dirs.T
-        hit = self._raycaster.cast_rays(o3c.Tensor.from_numpy(rays))
-        return {"depth": hit["t_hit"].numpy(), "face": hit["primitive_ids"].numpy(),
-                "bary": hit["primitive_uvs"].numpy(), "dirs": dirs}
+        depth, face, bary = self._raycaster.nearest(camera_to_world[:3, 3].astype(np.float32), dirs.T)
+        return {"depth": depth, "face": face, "bary": bary, "dirs": dirs}
 
     def render_depth(self, camera_to_world: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
         """(H, W) float32 metres along the optical axis, 0 where no surface is hit."""
@@ -97,9 +90,7 @@ class Renderer:
 
     def sees(self, eye: np.ndarray, target: np.ndarray, share: float = 0.9) -> bool:
         """Whether the first `share` of the way from `eye` to `target` (world points) is free of surfaces."""
-        offset = np.asarray(target, np.float32) - np.asarray(eye, np.float32)
-        ray = o3c.Tensor(np.concatenate([np.asarray(eye, np.float32), offset])[None])
-        return bool(self._raycaster.cast_rays(ray)["t_hit"].numpy()[0] >= share)  # t in units of `offset`
+        return self._raycaster.sees(eye, target, share)
 
     def render_linear(self, camera_to_world: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Linear radiance (H, W, 3) float32 and z-depth (H, W) float32 (0 = miss)."""
@@ -140,7 +131,7 @@ class Renderer:
             weight = np.maximum(nx * lx + ny * ly + nz * lz, 0) / (
                 np.sqrt(dist2) * (1 + dist2 * np.float32(1 / LIGHT_FALLOFF_M ** 2)))
             if self.shadows and k == self.scene.shadow_light:
-                weight *= self._unoccluded(px, py, pz, nx, ny, nz, lx, ly, lz, weight > 0)
+                weight *= self._unoccluded(px, py, pz, nx, ny, nz, lx, ly, lz, weight > 0, pos)
             for k in range(3):
                 shade[k] += weight * color[k]
         radiance = np.empty((len(hit), 3), np.float32)
@@ -156,17 +147,16 @@ class Renderer:
         h, w = intrinsics.height, intrinsics.width
         return radiance.reshape(h, w, 3), depth.reshape(h, w)
 
-    def _unoccluded(self, px, py, pz, nx, ny, nz, lx, ly, lz, lit) -> np.ndarray:
-        """1 where nothing lies between a lit point and the light, else 0 (float32, shape of px)."""
+    def _unoccluded(self, px, py, pz, nx, ny, nz, lx, ly, lz, lit, light) -> np.ndarray:
+        """1 where nothing lies between a lit point and the light at `light` (3,), else 0 (float32, shape of px)."""
         idx = np.flatnonzero(lit)
-        rays = np.empty((len(idx), 6), np.float32)
+        starts, towards = np.empty((len(idx), 3), np.float32), np.empty((len(idx), 3), np.float32)
         offset = np.float32(SHADOW_RAY_OFFSET_M)
         for k, (p, n, d) in enumerate(((px, nx, lx), (py, ny, ly), (pz, nz, lz))):
-            rays[:, k] = p[idx] + n[idx] * offset  # start just off the surface, towards the camera side
-            rays[:, 3 + k] = d[idx]  # unnormalised: the light sits at t = 1
-        hit = self._raycaster.cast_rays(o3c.Tensor.from_numpy(rays))["t_hit"].numpy()
+            starts[:, k] = p[idx] + n[idx] * offset  # start just off the surface, towards the camera side
+            towards[:, k] = d[idx]  # unnormalised: the light sits at t = 1
         visible = np.ones(len(px), np.float32)
-        visible[idx[hit < 1.0]] = 0.0
+        visible[idx[self._raycaster.blocked(starts, towards, light)]] = 0.0
         return visible
 
     def tone_map(self, radiance: np.ndarray, gain=1.0) -> np.ndarray:
