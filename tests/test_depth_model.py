@@ -7,6 +7,7 @@ from depth.config import COMPACT, PAPER, TINY, ESTConfig, get_config
 from depth.loss import multi_stage_loss, stage_weights
 from depth.model import ESTNet
 from depth.model.context import ContextNet
+from depth.model.layers import Conv3d
 from depth.model.volumes import soft_argmax_depth
 from recon.errors import ReconError
 
@@ -55,6 +56,21 @@ def test_outputs_shapes_and_ranges():
             assert d.min() >= 1.0 - 1e-4 and d.max() <= 5.0 + 1e-4
         assert o.confidence.min() >= 1.0 / TINY.num_planes - 1e-6 and o.confidence.max() <= 1.0
         assert o.memory.key.shape == (2, TINY.volume_channels // 2, TINY.num_planes, h // 4, w // 4)
+
+
+@pytest.mark.parametrize("channels", [8, 16, 17])
+def test_fast_conv3d_is_the_plain_convolution(channels):
+    """Zero-padded narrow inputs and the channels-last layout change the kernel, not the function or its gradients."""
+    torch.manual_seed(0)
+    fast = Conv3d(channels, 8, 3, 1, 1)
+    plain = torch.nn.Conv3d(channels, 8, 3, 1, 1)
+    plain.load_state_dict(fast.state_dict())
+    x = torch.randn(1, channels, 6, 10, 12, requires_grad=True)
+    y_fast, y_plain = fast(x), plain(x)
+    assert torch.allclose(y_fast, y_plain, atol=1e-5)
+    (g_fast,) = torch.autograd.grad(y_fast.square().sum(), fast.weight)
+    (g_plain,) = torch.autograd.grad(y_plain.square().sum(), plain.weight)
+    assert torch.allclose(g_fast, g_plain, rtol=1e-4, atol=1e-4)
 
 
 def test_soft_argmax_recovers_plane_depth():

@@ -8,6 +8,7 @@ import torch
 from torch import nn
 
 from ..geometry import epipolar_warp_volume
+from .layers import Conv3d
 
 
 @dataclass
@@ -42,9 +43,9 @@ class ESTransformer(nn.Module):
         self.plane_spacing = plane_spacing
         c = channels
         if fusion == "adaptive":
-            self.gates = nn.Conv3d(2 * c, 2 * c, 3, 1, 1)
+            self.gates = Conv3d(2 * c, 2 * c, 3, 1, 1)
             self.gate_norm = nn.GroupNorm(2, 2 * c)
-        self.candidate = nn.Conv3d(2 * c, c, 3, 1, 1)
+        self.candidate = Conv3d(2 * c, c, 3, 1, 1)
         self.candidate_norm = nn.GroupNorm(1, c)
 
     def retrieve(self, key: torch.Tensor, memories: list[MemoryEntry], camera_to_world: torch.Tensor,

@@ -6,7 +6,7 @@ from torch import nn
 
 from ..config import ESTConfig
 from ..geometry import plane_sweep_warp
-from .layers import conv3d_bn
+from .layers import Conv3d, conv3d_bn
 
 
 class MatchNet(nn.Module):
@@ -28,7 +28,7 @@ class MatchNet(nn.Module):
         c, f = cfg.volume_channels, cfg.feature_channels
         self.project_ref = nn.Conv2d(f, c, 1, bias=False)
         self.project_src = nn.Conv2d(f, c, 1, bias=False)
-        self.project_meta = nn.Conv3d(2, c, 1, bias=False) if cfg.match_metadata else None
+        self.project_meta = Conv3d(2, c, 1, bias=False) if cfg.match_metadata else None
         self.project_norm = nn.BatchNorm3d(c)
         self.residual = nn.Sequential(conv3d_bn(c, c), conv3d_bn(c, c, activation=None))
         self.regularise = nn.Sequential(*[conv3d_bn(c, c) for _ in range(cfg.match_regularisation_layers)])
@@ -80,7 +80,7 @@ class DepthHead(nn.Module):
 
     def __init__(self, channels: int):
         super().__init__()
-        self.body = nn.Sequential(conv3d_bn(channels, channels), nn.Conv3d(channels, 1, 1))
+        self.body = nn.Sequential(conv3d_bn(channels, channels), Conv3d(channels, 1, 1))
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         return self.body(volume).squeeze(1)
