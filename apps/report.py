@@ -36,6 +36,7 @@ METRICS = {
     "a2": ("δ < 1.25²", "share of pixels with max(d/d*, d*/d) < 1.5625", "share"),
     "a3": ("δ < 1.25³", "share of pixels with max(d/d*, d*/d) < 1.953", "share"),
     "coverage": ("coverage", "share of ground-truth pixels that got a prediction", "share"),
+    "median_ratio": ("scale", "median of d / d*: 1 = no scale bias, 1.1 = everything 10 % too far", "ratio"),
     "frames": ("frames", "frames scored", "count"),
     "min_depth": ("range from", "evaluation range start", "length"),
     "max_depth": ("range to", "evaluation range end", "length"),

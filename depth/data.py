@@ -33,6 +33,7 @@ class ClipOptions:
     saturation: float = 0.2
     gamma: float = 0.2
     depth_margin: float = 0.1  # range from GT: [min * (1 - m), max * (1 + m)] when metadata has none
+    scale_jitter: float = 0.0  # with augment: scene scaled by exp(U(-j, j)) per clip (depth and baselines)
     keep_orientation: bool = True  # portrait scans get a portrait clip (width and height swapped)
 
 
@@ -53,6 +54,18 @@ def _augment(images: torch.Tensor, opts: ClipOptions, gen: torch.Generator) -> t
     return x.clamp(0, 1)
 
 
+def _scale_scene(depth: torch.Tensor, camera_to_world: torch.Tensor, jitter: float, gen: torch.Generator
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The clip's room made larger or smaller by one factor exp(U(-jitter, jitter)): the images stay
+    the same, depth and camera positions scale together. A room's apparent size then says nothing
+    about its metres, so the network has to take scale from the baselines (the poses), not from
+    what rooms usually look like. depth (V, H, W), camera_to_world (V, 4, 4) -> the same shapes."""
+    factor = float(np.exp((torch.rand((), generator=gen).item() * 2 - 1) * jitter))
+    scaled = camera_to_world.clone()
+    scaled[:, :3, 3] *= factor
+    return depth * factor, scaled
+
+
 def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | None = None) -> dict:
     """One clip as tensors: images (V, 3, H, W) in [0, 1], K (3, 3) at H x W, camera_to_world
     (V, 4, 4), depth (V, H, W) metres (0 = invalid), depth_range (2,)."""
@@ -67,8 +80,11 @@ def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | 
             raise ReconError(f"{scan.root or 'scan'} frame {scan.frames[i].name}: training needs GT depth")
         depths.append(torch.from_numpy(np.nan_to_num(d, nan=0.0, posinf=0.0)))
     images, depth = torch.stack(images), torch.stack(depths)
+    camera_to_world = torch.from_numpy(scan.camera_to_world[idx]).float()
     if opts.augment and gen is not None:
         images = _augment(images, opts, gen)
+        if opts.scale_jitter > 0:
+            depth, camera_to_world = _scale_scene(depth, camera_to_world, opts.scale_jitter, gen)
     if scan.metadata.depth_range is not None:
         lo, hi = scan.metadata.depth_range
     else:
@@ -78,7 +94,7 @@ def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | 
         lo, hi = float(valid.min()) * (1 - opts.depth_margin), float(valid.max()) * (1 + opts.depth_margin)
     depth = torch.where((depth >= lo) & (depth <= hi), depth, torch.zeros_like(depth))
     return {"images": images, "K": torch.from_numpy(net.intrinsics.K).float(),
-            "camera_to_world": torch.from_numpy(scan.camera_to_world[idx]).float(),
+            "camera_to_world": camera_to_world,
             "depth": depth, "depth_range": torch.tensor([lo, hi], dtype=torch.float32)}
 
 
@@ -124,7 +140,7 @@ class ClipDataset(Dataset):
         """What the data is, for checkpoint metadata."""
         return {"scans": [str(s.root or s.metadata.source) for s in self.scans], "clips": len(self),
                 "clip_length": self.opts.clip_length, "frame_gap": self.opts.frame_gap,
-                "size": [self.opts.width, self.opts.height]}
+                "size": [self.opts.width, self.opts.height], "scale_jitter": self.opts.scale_jitter}
 
 
 class StreamingClips(IterableDataset):
@@ -153,7 +169,8 @@ class StreamingClips(IterableDataset):
 
     def describe(self) -> dict:
         return {"stream": type(self.scans).__name__, **self.about, "clip_length": self.opts.clip_length,
-                "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height]}
+                "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height],
+                "scale_jitter": self.opts.scale_jitter}
 
 
 

@@ -3,7 +3,9 @@
 Numpy only, so the trainer can use it for validation. Per-frame metrics are computed
 on pixels whose ground truth lies inside [min_depth, max_depth]; predictions are
 clamped to that range (a missing prediction counts as the nearest bound, never as a
-free pass) and `coverage` says which share of those pixels had a prediction.
+free pass) and `coverage` says which share of those pixels had a prediction. `median_ratio`
+(median of prediction / GT over the covered pixels) is the scale bias: 1 for a metric network
+whose depth is neither too near nor too far overall.
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3,
         "a2": float(np.mean(ratio < 1.25 ** 2)),
         "a3": float(np.mean(ratio < 1.25 ** 3)),
         "coverage": float(np.mean(covered)),
+        "median_ratio": float(np.median(raw[covered] / gt[covered])) if covered.any() else float("nan"),
     }
 
 
@@ -82,6 +85,8 @@ def summarise(per_frame: list[dict[str, float]], flickers: list[float]) -> dict[
     if per_frame:
         for key in (*DEPTH_KEYS, "coverage"):
             out[key] = float(np.mean([m[key] for m in per_frame]))
+        ratios = [m["median_ratio"] for m in per_frame if np.isfinite(m["median_ratio"])]
+        out["median_ratio"] = float(np.median(ratios)) if ratios else float("nan")
         mae = np.array([m["abs"] for m in per_frame])
         out["mae_mean"] = float(mae.mean())
         out["mae_std"] = float(mae.std())

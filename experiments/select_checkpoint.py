@@ -7,7 +7,8 @@ Each checkpoint (a file, or a shipped name such as the incumbent `compact`) runs
 every held-out scan through `experiments.results_7scenes.depth_table` (the same code as the 7-Scenes
 table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
 need (experiments/ship_weights.py). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
-against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. Every row
+against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale" is the
+median prediction / GT ratio (1 = no scale bias). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 and 910002 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256.
@@ -79,19 +80,19 @@ def main(argv=None) -> int:
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"
                 summary.setdefault(key, {})[scan_name] = {k: m[k] for k in
-                                                          ("abs_rel", "abs", "rmse", "a1", "flicker", "coverage", "abs_rel_covered",
+                                                          ("abs_rel", "abs", "rmse", "a1", "flicker", "coverage", "abs_rel_covered", "median_ratio",
                                                            "seconds_per_frame")}
                 mesh = mesh_scores(scan, out / name / scan_name, TableOptions(mesh_row=row),
                                    log=lambda s: print(f"{name} {scan_name}: {s}"))
                 summary[key][scan_name].update({f"mesh_{k}": mesh[k] for k in ("prec", "recall", "fscore")})
             summary_path.write_text(json.dumps(summary, indent=2))
     names = list(scans)
-    print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / mesh F" for n in names)
+    print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / mesh F / scale" for n in names)
           + " | mean Abs Rel |")
     print("|---|" + "---|" * (len(names) + 1))
     for key, per in summary.items():
         cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('mesh_fscore', float('nan')):.3f}"
-                 if n in per else "-" for n in names]
+                 f" / {per[n].get('median_ratio', float('nan')):.3f}" if n in per else "-" for n in names]
         mean = sum(per[n]["abs_rel"] for n in names if n in per) / max(sum(n in per for n in names), 1)
         print(f"| {key} | " + " | ".join(cells) + f" | {mean:.4f} |")
     return 0

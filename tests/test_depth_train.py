@@ -38,6 +38,22 @@ def test_clips_shapes_augmentation_and_streaming():
         ClipDataset([scan.subset(range(4))], CLIP)
 
 
+def test_scale_jitter_scales_depth_and_baselines_together():
+    scan = plane_scan(7, 120, 90, step=0.08)
+    opts = ClipOptions(width=96, height=64, augment=True)
+    photometric, scaled = (ClipDataset([scan], o)[1] for o in (opts, ClipOptions(**{**opts.__dict__, "scale_jitter": 0.3})))
+    assert torch.equal(scaled["images"], photometric["images"])  # the images do not change
+    both = (scaled["depth"] > 0) & (photometric["depth"] > 0)
+    ratio = scaled["depth"][both] / photometric["depth"][both]
+    factor = float(ratio.mean())
+    assert abs(factor - 1) > 1e-3 and 0.74 <= factor <= 1.35 and torch.allclose(ratio, torch.full_like(ratio, factor))
+    a, b = photometric["camera_to_world"], scaled["camera_to_world"]
+    assert torch.equal(a[:, :3, :3], b[:, :3, :3])
+    assert torch.allclose(b[:, :3, 3], a[:, :3, 3] * factor, atol=1e-6)
+    # outside the clip's range the scaled GT is invalid, as any GT there is
+    assert ((scaled["depth"] == 0) | ((scaled["depth"] >= 1.0) & (scaled["depth"] <= 5.0))).all()
+
+
 def _two_plane_scans(shard):
     """Loader worker `shard`'s stream: rooms of its own."""
     return (plane_scan(5, 96, 64, step=0.08, seed=10 * shard + k) for k in range(2))

@@ -75,12 +75,14 @@ def test_depth_metrics_known_values():
     assert m["abs_rel"] == pytest.approx(0.1, rel=1e-5) and m["abs"] == pytest.approx(0.2, rel=1e-5)
     assert m["rmse"] == pytest.approx(0.2, rel=1e-5) and m["sq_rel"] == pytest.approx(0.02, rel=1e-5)
     assert m["rmse_log"] == pytest.approx(np.log(1.1), rel=1e-5) and m["a1"] == 1.0
+    assert m["median_ratio"] == pytest.approx(1.1, rel=1e-5)
     m = depth_metrics(gt * 1.5, gt)
     assert m["a1"] == 0 and m["a2"] == 1
     pred = gt.copy()
     pred[0] = 0  # a missing prediction is not a free pass
     m = depth_metrics(pred, gt)
     assert m["coverage"] == 0.75 and m["abs_rel"] > 0.2
+    assert m["median_ratio"] == 1.0  # the scale bias of the covered pixels only
     gt_far = gt.copy()
     gt_far[:2] = 20.0  # outside the evaluation range: ignored
     assert depth_metrics(gt, gt_far, max_depth=10.0)["abs_rel"] == 0

@@ -63,7 +63,10 @@ def add_arguments(p) -> None:
     data.add_argument("--full-res-after", type=float, default=0.7,
                       help="share of the horizon trained at --low-res (default 0.7)")
     data.add_argument("--frame-gap", type=int, default=1, help="scan frames between clip frames (default 1)")
-    data.add_argument("--no-augment", action="store_true", help="disable photometric augmentation")
+    data.add_argument("--no-augment", action="store_true", help="disable photometric (and scale) augmentation")
+    data.add_argument("--scale-jitter", type=float, default=0.0, metavar="J",
+                      help="scale each clip's room by exp(U(-J, J)), depth and baselines together, so scale "
+                           "must come from the poses (default 0: off)")
     data.add_argument("--seed", type=int, default=0, help="seed of the model init and the synthetic stream")
     files = p.add_argument_group("checkpoints")
     files.add_argument("--val-every", type=int, default=100, metavar="STEPS", help="(default 100)")
@@ -145,7 +148,7 @@ def _data(args: argparse.Namespace, cfg):
     from recon.errors import ReconError
 
     clip = ClipOptions(frame_gap=args.frame_gap, width=cfg.image_width, height=cfg.image_height,
-                       augment=not args.no_augment)
+                       augment=not args.no_augment, scale_jitter=args.scale_jitter)
     plain = ClipOptions(**{**clip.__dict__, "augment": False})
 
     def scans(paths):
