@@ -1,7 +1,8 @@
 """The depth stage: depth (+ confidence) for every frame of a canonical scan, written to a folder.
 
-Modes: `estm`, `joint`, `independent` (the network, `depth.estimator`) and `planesweep` (the
-classical baseline, `depth.planesweep`, no weights needed). Each frame's sources are chosen by
+Modes: `estm`, `joint`, `independent` (the network, `depth.estimator`), `planesweep` (the
+classical baseline, `depth.planesweep`, no weights needed) and `hybrid` (the plane sweep's depth
+where it has one, ESTM's elsewhere: `depth.hybrid`). Each frame's sources are chosen by
 pose distance (`recon.keyframes.select_sources`). Files and resuming: `depth.store`.
 """
 from __future__ import annotations
@@ -10,14 +11,15 @@ import logging
 import os
 import time
 from dataclasses import asdict, replace
-from typing import Callable
+from typing import Callable, Iterator
 
 from recon.io import load_depth_map
 from recon.scan import Scan
 
 from .checkpoint import DEFAULT_WEIGHTS, weights_digest
 from .estimator import DepthEstimator, TemporalMemory
-from .options import DepthOptions, frame_sources, scan_depth_range
+from .hybrid import merge_streams
+from .options import DepthOptions, FrameDepth, frame_sources, scan_depth_range
 from .planesweep import run_planesweep
 from .store import DepthStore
 from .views import describe_view
@@ -28,13 +30,14 @@ log = logging.getLogger(__name__)
 def _settings(scan: Scan, opts: DepthOptions, config_name: str | None) -> dict:
     """What determines the output maps; a resumed run reuses files only when these match."""
     learned = opts.mode != "planesweep"
+    swept = opts.mode in ("planesweep", "hybrid")
     return {"mode": opts.mode, "depth_range": list(scan_depth_range(scan, opts.depth_range)),
             "memory_size": opts.memory_size, "sources": asdict(opts.sources), "joint_group": opts.joint_group,
             "precision": opts.precision, "fit": opts.fit if learned else None, "config": config_name,
             "full_resolution": opts.full_resolution,
             "weights": str(opts.weights) if learned and opts.weights else None,
             "weights_digest": weights_digest(opts.weights) if learned else None,
-            "planesweep": asdict(opts.planesweep) if not learned else None, "names": scan.names}
+            "planesweep": asdict(opts.planesweep) if swept else None, "names": scan.names}
 
 
 def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple[DepthOptions, DepthEstimator]:
@@ -47,6 +50,17 @@ def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple
     if opts.depth_range is None and estimator.trained_depth_range is not None:
         opts = replace(opts, depth_range=estimator.trained_depth_range)
     return opts, estimator
+
+
+def _results(scan: Scan, opts: DepthOptions, estimator: DepthEstimator | None, memory: TemporalMemory | None,
+             skip: frozenset[int]) -> Iterator[FrameDepth]:
+    """Every frame but `skip`, in processing order, from the mode's method(s)."""
+    if opts.mode == "planesweep":
+        return run_planesweep(scan, opts, skip)
+    if opts.mode == "hybrid":
+        return merge_streams(estimator.run(scan, replace(opts, mode="estm"), memory, skip),
+                             run_planesweep(scan, opts, skip))
+    return estimator.run(scan, opts, memory, skip)
 
 
 def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = DepthOptions(),
@@ -66,15 +80,15 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     if resume and (previous := store.complete()):
         log.info("depth: %s is complete, reusing it", out_dir)
         return previous
-    skip, memory = frozenset(), TemporalMemory(opts.memory_size) if opts.mode == "estm" else None
+    skip, memory = frozenset(), TemporalMemory(opts.memory_size) if opts.mode in ("estm", "hybrid") else None
     if resume and opts.mode in ("planesweep", "independent"):
         skip = store.finished_frames(scan.names)
-    elif resume and opts.mode == "estm":
+    elif resume and opts.mode in ("estm", "hybrid"):
         skip, memory = store.finished_prefix(scan.names, list(frame_sources(scan, opts.sources)), opts.memory_size,
                                              estimator.device)
     store.begin()
     started = time.perf_counter()
-    results = run_planesweep(scan, opts, skip) if estimator is None else estimator.run(scan, opts, memory, skip)
+    results = _results(scan, opts, estimator, memory, skip)
     frames = {}
     for r in results:
         store.save(r, memory)

@@ -18,7 +18,7 @@ from recon.scan import Scan
 
 log = logging.getLogger(__name__)
 
-MODES = ("estm", "joint", "independent", "planesweep")
+MODES = ("estm", "joint", "independent", "planesweep", "hybrid")
 NETWORK_MODES = MODES[:3]
 PRECISIONS = ("fp32", "bf16")
 FITS = ("stretch", "crop")

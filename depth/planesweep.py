@@ -27,10 +27,21 @@ from .options import (DepthOptions, FrameDepth, PlaneSweepOptions, check_scan, f
 from .views import image_tensor
 
 
-
-
 def _box(x: torch.Tensor, k: int) -> torch.Tensor:
-    return F.avg_pool2d(x, k, 1, k // 2, count_include_pad=False)
+    """(N, C, H, W) -> the same, each map averaged over a k x k window (over the pixels inside the image).
+    Two 1D convolutions (a row pass, a column pass) divided by the window's pixel count: the same averages
+    as avg_pool2d(count_include_pad=False), about 6x faster on the CPU (docs/depth.md, plane sweep)."""
+    n, c, h, w = x.shape
+    maps = n * c
+    row = torch.ones(maps, 1, 1, k, dtype=x.dtype, device=x.device)
+    col = row.view(maps, 1, k, 1)
+
+    def window_sum(images: torch.Tensor) -> torch.Tensor:  # (1, maps, H, W), one depthwise filter per map
+        rows = F.conv2d(images, row[:images.shape[1]], padding=(0, k // 2), groups=images.shape[1])
+        return F.conv2d(rows, col[:images.shape[1]], padding=(k // 2, 0), groups=images.shape[1])
+
+    count = window_sum(torch.ones(1, 1, h, w, dtype=x.dtype, device=x.device))
+    return (window_sum(x.reshape(1, maps, h, w)) / count).view(n, c, h, w)
 
 
 def to_gray(rgb: torch.Tensor) -> torch.Tensor:

@@ -71,6 +71,8 @@ def row_options(row: str, opts: TableOptions):
         return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):
         return DepthOptions(mode=row, weights=opts.weights, **common)
+    if row == "hybrid":
+        return DepthOptions(mode="hybrid", weights=opts.weights, **common)
     if row.startswith("estm_m"):
         return DepthOptions(mode="estm", weights=opts.weights, memory_size=int(row[len("estm_m"):]), **common)
     if row == "estm_concat":

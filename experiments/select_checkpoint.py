@@ -6,7 +6,7 @@
 Each checkpoint (a file, or a shipped name such as the incumbent `compact`) runs ESTM (memory 2) on
 every held-out scan through `experiments.results_7scenes.depth_table` (the same code as the 7-Scenes
 table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
-need (experiments/ship_weights.py). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
+need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (plane sweep + ESTM). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
 against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale" is the
 median prediction / GT ratio (1 = no scale bias). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
@@ -53,6 +53,7 @@ def main(argv=None) -> int:
     p.add_argument("checkpoints", nargs="*")
     p.add_argument("--out", default="runs/select")
     p.add_argument("--baselines", action="store_true", help="also run planesweep and independent (first checkpoint)")
+    p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (plane sweep + ESTM)")
     p.add_argument("--threads", type=int, default=None)
     args = p.parse_args(argv)
 
@@ -68,7 +69,7 @@ def main(argv=None) -> int:
     scans = heldout_scans(out / "scans")
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    jobs = [(Path(c).stem, c, ("estm_m2",)) for c in args.checkpoints]
+    jobs = [(Path(c).stem, c, ("estm_m2", "hybrid") if args.hybrid else ("estm_m2",)) for c in args.checkpoints]
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))

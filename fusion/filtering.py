@@ -41,13 +41,16 @@ from .tsdf import DepthMap, DepthSource, TSDFConfig, depth_source
 
 CHECKS = ("consistency", "edges", "photometric")
 NETWORK_CHECKS = ("consistency", "edges")  # what `auto` runs on a network's (or a user's) depth
+# Depth modes `auto` leaves to the range test: the plane sweep's pixels already agreed with two sources, and
+# the hybrid's meshes scored higher unfiltered on the held-out scans (docs/evaluation.md).
+RANGE_ONLY_MODES = ("planesweep", "hybrid")
 
 
 @dataclass(frozen=True)
 class FilterConfig:
     """The depth filter before fusion (`--filter`); `checks` empty: only the fusion range applies; None (auto):
-    NETWORK_CHECKS on predicted depth, nothing but the range on the plane sweep's (each of its pixels already
-    agreed with two sources; filtering it again cost recall at no gain, docs/evaluation.md) or a scan's own."""
+    NETWORK_CHECKS on predicted depth, nothing but the range on the plane sweep's and the hybrid's
+    (RANGE_ONLY_MODES) or a scan's own."""
 
     checks: tuple[str, ...] | None = None
     views: int = 4  # nearest keyframes (pose distance) each depth map is checked against
@@ -85,7 +88,7 @@ class FilterConfig:
             mode = json.loads(summary.read_text()).get("mode") if summary.is_file() else None
         except (OSError, ValueError, AttributeError):
             mode = None
-        return replace(self, checks=() if mode == "planesweep" else NETWORK_CHECKS)
+        return replace(self, checks=() if mode in RANGE_ONLY_MODES else NETWORK_CHECKS)
 
 
 def parse_checks(text: str) -> tuple[str, ...] | None:

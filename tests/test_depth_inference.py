@@ -230,3 +230,55 @@ def test_compiled_network_gives_the_same_depth(estimator, scan):
     assert estimator.network_calls(True) is estimator.network_calls(True)  # compiled once, then reused
     for a, b in zip(eager, compiled):
         assert np.allclose(a.depth, b.depth, rtol=1e-4, atol=1e-4)
+
+
+def _frame(index, depth, confidence):
+    from depth.options import FrameDepth
+    return FrameDepth(index, f"{index:06d}", np.asarray(depth, np.float32), np.asarray(confidence, np.float32), [0])
+
+
+def test_merge_depth_takes_the_sweep_where_it_has_depth():
+    from depth.hybrid import merge_depth
+    net = _frame(3, np.full((4, 6), 2.0), np.full((4, 6), 0.1))
+    sweep_depth = np.zeros((2, 3))
+    sweep_depth[0, 1] = 3.0  # one coarse pixel: 2x2 pixels of the network's grid
+    merged = merge_depth(net, _frame(3, sweep_depth, np.where(sweep_depth > 0, 0.9, 0.0)))
+    swept = np.zeros((4, 6), bool)
+    swept[0:2, 2:4] = True
+    assert merged.depth.shape == (4, 6) and merged.index == 3 and merged.sources == [0]
+    assert (merged.depth[swept] == 3.0).all() and (merged.depth[~swept] == 2.0).all()
+    assert (merged.confidence[swept] == np.float32(0.9)).all() and (merged.confidence[~swept] == np.float32(0.1)).all()
+    with pytest.raises(ReconError, match="hybrid depth"):
+        merge_depth(net, _frame(4, sweep_depth, sweep_depth))
+
+
+def test_hybrid_mode_is_the_sweep_filled_in_by_estm_and_resumes(tmp_path, scan):
+    torch.manual_seed(0)
+    weights = str(save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY, {"note": "random"}))
+    runs = {mode: tmp_path / mode for mode in ("estm", "planesweep", "hybrid")}
+    for mode, out in runs.items():
+        summary = estimate_depth(scan, out, DepthOptions(mode=mode, weights=weights, depth_range=(1.0, 5.0)))
+    assert summary["mode"] == "hybrid" and summary["planesweep"] is not None and summary["weights_digest"]
+    swept_any = False
+    for name in scan.names:
+        estm, hybrid = (load_depth_map(runs[m], name) for m in ("estm", "hybrid"))
+        sweep = cv2.resize(load_depth_map(runs["planesweep"], name), estm.shape[::-1], interpolation=cv2.INTER_NEAREST)
+        has = sweep > 0
+        swept_any |= has.mean() > 0.2
+        assert np.array_equal(hybrid[has], sweep[has]) and np.array_equal(hybrid[~has], estm[~has])
+    assert swept_any  # the textured plane gives the sweep most pixels: the test compares something
+    # interrupted after two frames, it resumes ESTM's memory and writes the same maps
+    resumed = tmp_path / "resumed"
+    opts = DepthOptions(mode="hybrid", weights=weights, depth_range=(1.0, 5.0))
+
+    def stop_after_two(i, n):
+        if i == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        estimate_depth(scan, resumed, opts, progress=stop_after_two)
+    computed = []
+    estimate_depth(scan, resumed, opts, resume=True, progress=lambda i, n: computed.append(i))
+    assert computed == [3, 4, 5]
+    for name in scan.names:
+        assert np.allclose(load_depth_map(resumed, name), load_depth_map(runs["hybrid"], name), atol=2e-3)

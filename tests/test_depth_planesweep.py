@@ -59,3 +59,14 @@ def test_planesweep_on_real_iclnuim_frames(iclnuim):
     abs_rel = np.mean(np.abs(depth[valid] - gt[valid]) / gt[valid])
     assert valid.sum() > 0.1 * (gt > 0).sum()
     assert abs_rel < 0.1
+
+
+def test_box_filter_is_the_window_mean_inside_the_image():
+    import torch.nn.functional as F
+
+    from depth.planesweep import _box
+    x = torch.rand(3, 2, 20, 27, generator=torch.Generator().manual_seed(0))
+    expected = F.avg_pool2d(x, 7, 1, 3, count_include_pad=False)
+    assert torch.allclose(_box(x, 7), expected, atol=1e-6)
+    corner = x[0, 1, :4, :4].mean()  # a 7x7 window at (0, 0) covers 4x4 pixels of the image
+    assert torch.allclose(_box(x, 7)[0, 1, 0, 0], corner, atol=1e-6)

@@ -217,7 +217,7 @@ def test_auto_filters_network_depth_only(tmp_path):
 
     auto = FilterConfig()
     assert auto.checks is None and parse_checks("auto") is None
-    for mode, checks in (("planesweep", ()), ("estm", ("consistency", "edges"))):
+    for mode, checks in (("planesweep", ()), ("hybrid", ()), ("estm", ("consistency", "edges"))):
         (tmp_path / mode).mkdir()
         (tmp_path / mode / "depth.json").write_text(_json.dumps({"mode": mode}))
         assert auto.for_depth(tmp_path / mode).checks == checks
