@@ -5,7 +5,8 @@
 Scans: the held-out rooms of checkpoint selection (`experiments.select_checkpoint.heldout_scans`: synthetic
 seeds 910001/910002, the demo room, ICL-NUIM) and 7-Scenes redkitchen every 10th frame at 320x256 (the
 protocol of docs/results_7scenes.md; reported, never tuned on). Depth comes once per scan and mode (ESTM
-with the given weights, memory 2, and the plane sweep; both over the weights' trained range) into `--cache`
+with the given weights, memory 2, the plane sweep, and on request the hybrid of the two; all over the weights'
+trained range) into `--cache`
 and is reused by every row and every later run with the same settings. Each row fuses the same maps
 (`experiments.results_7scenes.mesh_scores`: 4 cm voxels, depth up to 4 m) and scores the mesh against the
 fusion of the GT depth of the same frames: precision, recall and F at 5 cm, the share of depth pixels the
@@ -30,7 +31,7 @@ from fusion.filtering import NETWORK_CHECKS, FilterConfig  # noqa: E402
 from fusion.mesh import MeshCleanup  # noqa: E402
 
 SEVENSCENES = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
-MODES = {"estm": "estm_m2", "planesweep": "planesweep"}  # the depth table's row names (results_7scenes)
+MODES = {"estm": "estm_m2", "planesweep": "planesweep", "hybrid": "hybrid"}  # the depth table's rows (results_7scenes)
 
 # name -> (filter, cleanup): each row adds one part to the one before it; "+ weights" is "+ edges" with the
 # consistency score as TSDF weights. Checks are spelled out: `auto` would skip them on the plane sweep.
@@ -41,7 +42,7 @@ ROWS = {
     "+ cleanup": (FilterConfig(checks=NETWORK_CHECKS), MeshCleanup(min_component_area=0.05)),
     "+ weights": (FilterConfig(checks=NETWORK_CHECKS, weights=True), None),
 }
-DEFAULT_ROWS = {"estm": "+ edges", "planesweep": "none"}  # what `recon run` does by default (--filter auto)
+DEFAULT_ROWS = {"estm": "+ edges", "planesweep": "none", "hybrid": "none"}  # what `recon run` does by default (--filter auto)
 
 # The rows the defaults were chosen from (docs/evaluation.md; `--rows selection --scans iclnuim_s5,synthetic_910002`):
 # the first filter's thresholds (5 %, 80 degrees) against the chosen ones (10 %, 85 degrees), with and without the
@@ -184,7 +185,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--cache", default="/tmp/filter_ablation", help="depth maps and meshes (reused when present)")
     p.add_argument("--weights", default=DEFAULT_WEIGHTS, help=f"network weights (default {DEFAULT_WEIGHTS})")
-    p.add_argument("--modes", default="estm,planesweep", help="depth sources, comma-separated (estm, planesweep)")
+    p.add_argument("--modes", default="estm,planesweep", help="depth sources, comma-separated (estm, planesweep, hybrid)")
     p.add_argument("--rows", choices=("ablation", "selection", "curve"), default="ablation",
                    help="ablation: the table of docs/evaluation.md; selection: the rows the defaults were chosen "
                         "from; curve: only the confidence curves")
