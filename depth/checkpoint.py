@@ -106,6 +106,24 @@ def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None 
     return Checkpoint(config, state, doc.get("metadata", {}), doc.get("training", {}), str(path))
 
 
+def average_checkpoints(names_or_paths: list[str | os.PathLike]) -> Checkpoint:
+    """The mean of several checkpoints of one network (weight averaging along a run: late checkpoints of a
+    noisy CPU run differ more than their quality does, and their mean sits nearer the basin's centre).
+    Floating-point tensors are averaged, integer ones (BatchNorm step counts) taken from the last; the
+    last checkpoint's metadata is kept, with `averaged_from` naming the inputs."""
+    if not names_or_paths:
+        raise ReconError("average_checkpoints: no checkpoints given")
+    checkpoints = [load_checkpoint(p) for p in names_or_paths]
+    last = checkpoints[-1]
+    for ck in checkpoints[:-1]:
+        if ck.config != last.config or set(ck.state_dict) != set(last.state_dict):
+            raise ReconError(f"{ck.source}: cannot average with {last.source} (another network)")
+    state = {k: (torch.stack([ck.state_dict[k] for ck in checkpoints]).mean(0) if v.is_floating_point() else v)
+             for k, v in last.state_dict.items()}
+    metadata = dict(last.metadata, averaged_from=[ck.source for ck in checkpoints])
+    return Checkpoint(last.config, state, metadata, source=f"mean of {len(checkpoints)} checkpoints")
+
+
 def build_model(checkpoint: Checkpoint) -> torch.nn.Module:
     """An ESTNet of the checkpoint's config with its weights (eval mode, CPU)."""
     from .model import ESTNet

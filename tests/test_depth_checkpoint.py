@@ -2,7 +2,7 @@
 import pytest
 import torch
 
-from depth.checkpoint import build_model, load_checkpoint, resolve_weights, save_checkpoint
+from depth.checkpoint import average_checkpoints, build_model, load_checkpoint, resolve_weights, save_checkpoint
 from depth.config import TINY
 from depth.model import ESTNet
 from recon.errors import ReconError
@@ -78,6 +78,23 @@ def test_bad_checkpoints_are_refused(tmp_path):
     torch.save(doc, tmp_path / "mismatch.pt")
     with pytest.raises(ReconError, match="do not fit"):
         build_model(load_checkpoint(tmp_path / "mismatch.pt"))
+
+
+def test_average_is_the_mean_of_the_weights_and_keeps_counts(tmp_path):
+    a, b = _trained_like(), ESTNet(TINY)
+    for name, buf in b.named_buffers():
+        if name.endswith("num_batches_tracked"):
+            buf.fill_(5)
+    paths = [save_checkpoint(tmp_path / f"{n}.pt", net, TINY, {"steps": s}) for n, net, s in (("a", a, 10), ("b", b, 20))]
+    mean = average_checkpoints(paths)
+    assert mean.metadata["steps"] == 20 and mean.metadata["averaged_from"] == [str(p) for p in paths]
+    sa, sb = a.state_dict(), b.state_dict()
+    for k, v in mean.state_dict.items():
+        expect = (sa[k] + sb[k]) / 2 if v.is_floating_point() else sb[k]
+        assert torch.allclose(v, expect, atol=1e-6), k
+    with pytest.raises(ReconError, match="cannot average"):
+        average_checkpoints([save_checkpoint(tmp_path / "c.pt", ESTNet(TINY.replace(num_planes=8)),
+                                             TINY.replace(num_planes=8)), paths[0]])
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

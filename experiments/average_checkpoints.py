@@ -1,0 +1,34 @@
+"""Average the weights of several checkpoints of one run into one checkpoint file, to score it like any other.
+
+    python experiments/average_checkpoints.py runs/lite_v13/step_005200.pt runs/lite_v13/step_005300.pt \
+        runs/lite_v13/step_005336.pt --out runs/lite_v13/mean_005200_005336.pt
+
+Late checkpoints of a CPU run at batch size 1 differ more in held-out error than in what they learned;
+their mean is one network as fast as each (docs/model_card.md has the measured effect).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoints", nargs="+", help="checkpoints of one network; the last one's metadata is kept")
+    p.add_argument("--out", required=True, help="checkpoint file to write")
+    args = p.parse_args(argv)
+
+    from depth.checkpoint import average_checkpoints, build_model, save_checkpoint
+
+    mean = average_checkpoints(args.checkpoints)
+    save_checkpoint(args.out, build_model(mean), mean.config, metadata=mean.metadata, fp16=True)
+    print(f"{args.out}: mean of {len(args.checkpoints)} checkpoints")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
