@@ -35,6 +35,7 @@ METRICS = {
     "a1": ("δ < 1.25", "share of pixels with max(d/d*, d*/d) < 1.25", "share"),
     "a2": ("δ < 1.25²", "share of pixels with max(d/d*, d*/d) < 1.5625", "share"),
     "a3": ("δ < 1.25³", "share of pixels with max(d/d*, d*/d) < 1.953", "share"),
+    "within_5cm": ("within 5 cm", "share of pixels whose depth is within 5 cm (the mesh score's threshold)", "share"),
     "coverage": ("coverage", "share of ground-truth pixels that got a prediction", "share"),
     "median_ratio": ("scale", "median of d / d*: 1 = no scale bias, 1.1 = everything 10 % too far", "ratio"),
     "frames": ("frames", "frames scored", "count"),

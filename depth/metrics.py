@@ -5,7 +5,9 @@ on pixels whose ground truth lies inside [min_depth, max_depth]; predictions are
 clamped to that range (a missing prediction counts as the nearest bound, never as a
 free pass) and `coverage` says which share of those pixels had a prediction. `median_ratio`
 (median of prediction / GT over the covered pixels) is the scale bias: 1 for a metric network
-whose depth is neither too near nor too far overall.
+whose depth is neither too near nor too far overall. `within_5cm` is the share of pixels whose
+depth is within the mesh score's 5 cm: δ<1.25 calls a 40 cm error at 2 m right, a fused surface
+does not, so two networks can rank one way on Abs Rel and δ and the other way on the mesh.
 """
 from __future__ import annotations
 
@@ -13,7 +15,8 @@ import numpy as np
 
 from recon.geometry import reproject_depth
 
-DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "within_5cm")
+SURFACE_TOLERANCE = 0.05  # metres: the mesh F-score's threshold, so `within_5cm` reads as the depth the mesh can use
 
 
 def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3, max_depth: float = 10.0
@@ -39,6 +42,7 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3,
         "a1": float(np.mean(ratio < 1.25)),
         "a2": float(np.mean(ratio < 1.25 ** 2)),
         "a3": float(np.mean(ratio < 1.25 ** 3)),
+        "within_5cm": float(np.mean(np.abs(diff) < SURFACE_TOLERANCE)),
         "coverage": float(np.mean(covered)),
         "median_ratio": float(np.median(raw[covered] / gt[covered])) if covered.any() else float("nan"),
     }

@@ -81,21 +81,24 @@ def main(argv=None) -> int:
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"
                 summary.setdefault(key, {})[scan_name] = {k: m[k] for k in
-                                                          ("abs_rel", "abs", "rmse", "a1", "flicker", "coverage", "abs_rel_covered", "median_ratio",
-                                                           "seconds_per_frame")}
+                                                          ("abs_rel", "abs", "rmse", "a1", "within_5cm", "flicker", "coverage", "abs_rel_covered",
+                                                           "median_ratio", "seconds_per_frame")}
                 mesh = mesh_scores(scan, out / name / scan_name, TableOptions(mesh_row=row),
                                    log=lambda s: print(f"{name} {scan_name}: {s}"))
                 summary[key][scan_name].update({f"mesh_{k}": mesh[k] for k in ("prec", "recall", "fscore")})
             summary_path.write_text(json.dumps(summary, indent=2))
     names = list(scans)
-    print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / mesh F / scale" for n in names)
-          + " | mean Abs Rel |")
-    print("|---|" + "---|" * (len(names) + 1))
+    print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / within 5 cm / mesh F / scale" for n in names)
+          + " | mean Abs Rel | mean mesh F |")
+    print("|---|" + "---|" * (len(names) + 2))
+    nan = float("nan")
     for key, per in summary.items():
-        cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('mesh_fscore', float('nan')):.3f}"
-                 f" / {per[n].get('median_ratio', float('nan')):.3f}" if n in per else "-" for n in names]
-        mean = sum(per[n]["abs_rel"] for n in names if n in per) / max(sum(n in per for n in names), 1)
-        print(f"| {key} | " + " | ".join(cells) + f" | {mean:.4f} |")
+        cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('within_5cm', nan):.1%}"
+                 f" / {per[n].get('mesh_fscore', nan):.3f} / {per[n].get('median_ratio', nan):.3f}" if n in per else "-"
+                 for n in names]
+        scored = [n for n in names if n in per]
+        mean = {k: sum(per[n].get(k, nan) for n in scored) / max(len(scored), 1) for k in ("abs_rel", "mesh_fscore")}
+        print(f"| {key} | " + " | ".join(cells) + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} |")
     return 0
 
 

@@ -76,6 +76,11 @@ def test_depth_metrics_known_values():
     assert m["rmse"] == pytest.approx(0.2, rel=1e-5) and m["sq_rel"] == pytest.approx(0.02, rel=1e-5)
     assert m["rmse_log"] == pytest.approx(np.log(1.1), rel=1e-5) and m["a1"] == 1.0
     assert m["median_ratio"] == pytest.approx(1.1, rel=1e-5)
+    assert m["within_5cm"] == 0.0  # 20 cm off at 2 m: right by δ<1.25, not for a surface
+    near = gt.copy()
+    near[:, :1] += 0.04
+    near[:, 1:2] -= 0.06
+    assert depth_metrics(near, gt)["within_5cm"] == 0.75 and depth_metrics(near, gt)["a1"] == 1.0
     m = depth_metrics(gt * 1.5, gt)
     assert m["a1"] == 0 and m["a2"] == 1
     pred = gt.copy()
