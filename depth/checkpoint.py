@@ -107,9 +107,8 @@ def load_checkpoint(name_or_path: str | os.PathLike, expected: ESTConfig | None 
 
 
 def average_checkpoints(names_or_paths: list[str | os.PathLike]) -> Checkpoint:
-    """The mean of several checkpoints of one network (weight averaging along a run: late checkpoints of a
-    noisy CPU run differ more than their quality does, and their mean sits nearer the basin's centre).
-    Floating-point tensors are averaged, integer ones (BatchNorm step counts) taken from the last; the
+    """The mean of several checkpoints of one network (weight averaging along a run, SWA style: one network
+    as fast as each; what it gained on `lite` is in docs/model_card.md). Floating-point tensors are averaged, integer ones (BatchNorm step counts) taken from the last; the
     last checkpoint's metadata is kept, with `averaged_from` naming the inputs."""
     if not names_or_paths:
         raise ReconError("average_checkpoints: no checkpoints given")

@@ -3,8 +3,9 @@
     python experiments/average_checkpoints.py runs/lite_v13/step_005200.pt runs/lite_v13/step_005300.pt \
         runs/lite_v13/step_005336.pt --out runs/lite_v13/mean_005200_005336.pt
 
-Late checkpoints of a CPU run at batch size 1 differ more in held-out error than in what they learned;
-their mean is one network as fast as each (docs/model_card.md has the measured effect).
+Late checkpoints of a CPU run at batch size 1 differ in held-out error from one to the next; their mean
+is one network as fast as each. Measured on `runs/lite_v13` (docs/model_card.md): no gain over the last
+checkpoint once the learning rate has decayed.
 """
 from __future__ import annotations
 
