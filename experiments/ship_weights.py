@@ -13,7 +13,8 @@ Passing all three writes `<name>.pt`. Passing rule 1 but not all three writes `<
 the training lineage's resume point: not the default, kept in git so training resumes from it on a
 fresh machine (`recon train --init <name>-preview`; runs/ does not survive one: 7 h and then 1 h of
 `lite` training were lost that way), and replaced only by a checkpoint that beats it on the held-out
-mean Abs Rel (so the selection must score the existing preview too). Its metadata says whether it
+mean Abs Rel (against the figures the preview shipped with, from its metadata; a preview file without
+them must be scored by the selection). Its metadata says whether it
 beats the incumbent. Otherwise nothing is written (exit 1). Stores float16 weights (no optimiser
 state) with metadata: data, steps, hardware, training time, clip validation, the held-out figures and
 the rule results.
@@ -62,10 +63,15 @@ def rules(sel: dict, key: str, incumbent: str | None) -> dict[str, bool]:
 
 
 def beats_preview(sel: dict, key: str, preview: Path) -> bool:
-    """True when there is no preview yet or `key` beats it on the mean Abs Rel over the scans both have."""
+    """True when there is no preview yet or `key` beats it on the mean Abs Rel over the scans both have.
+    The preview's figures are the ones it shipped with (its metadata), so a selection row cached for an
+    older preview file cannot decide; a file without them needs its row in the selection."""
     if not preview.is_file():
         return True
-    old = sel.get(f"{preview.stem}:estm_m2")
+    from depth.checkpoint import load_checkpoint
+
+    shipped = (load_checkpoint(preview).metadata.get("validation") or {}).get("heldout_scans") or {}
+    old = next((row for name, row in shipped.items() if name != "planesweep"), None) or sel.get(f"{preview.stem}:estm_m2")
     if old is None:
         raise SystemExit(f"{preview} exists but the selection did not score it: add it to select_checkpoint.py")
     both = [n for n in sel[key] if n in old]

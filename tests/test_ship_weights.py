@@ -60,13 +60,16 @@ def test_a_lineage_that_beats_the_plane_sweep_depth_ships_a_preview_that_only_a_
     preview = weights / "lite-preview.pt"
     assert [p.name for p in weights.iterdir()] == ["lite-preview.pt"]
     assert load_checkpoint(preview).metadata["steps"] == 1
-    with pytest.raises(SystemExit, match="did not score it"):
-        main(2, {"step_000002": _row(0.20, 0.3)})
-    assert main(3, {"step_000003": _row(0.26, 0.3), "lite-preview": _row(0.25, 0.3)}) == 1
+    # the preview's own shipped figures (0.25) decide, not a selection row left from an older preview file
+    assert main(3, {"step_000003": _row(0.26, 0.3), "lite-preview": _row(0.30, 0.3)}) == 1
     assert load_checkpoint(preview).metadata["steps"] == 1
-    assert main(4, {"step_000004": _row(0.24, 0.3), "lite-preview": _row(0.25, 0.3)}) == 0
+    assert main(4, {"step_000004": _row(0.24, 0.3)}) == 0
     assert load_checkpoint(preview).metadata["steps"] == 4
     assert load_checkpoint(preview).metadata["validation"]["rules"]["beats compact"] is False
+    save_checkpoint(preview, ESTNet(COMPACT), COMPACT, {"steps": 9})  # a preview that records no figures
+    with pytest.raises(SystemExit, match="did not score it"):
+        main(5, {"step_000005": _row(0.20, 0.3)})
+    assert main(6, {"step_000006": _row(0.20, 0.3), "lite-preview": _row(0.21, 0.3)}) == 0
 
 
 def test_passing_every_rule_ships_the_named_weights(ship):
