@@ -54,8 +54,9 @@ def add_arguments(p) -> None:
                      help="lr factor of the pretrained encoder's trainable blocks (default 0.1)")
     opt.add_argument("--weight-decay", type=float, default=1e-5)
     opt.add_argument("--grad-clip", type=float, default=5.0, help="gradient-norm clip (default 5; 0 = off)")
-    opt.add_argument("--loss", choices=("l1", "log_l1"), default="log_l1",
-                     help="per-pixel error: l1 in metres (paper) or l1 of log depth (default)")
+    opt.add_argument("--loss", choices=("l1", "log_l1"), default="l1",
+                     help="per-pixel error: l1 in metres (paper; default: measured better for the mesh, "
+                          "docs/model_card.md lite_v15) or l1 of log depth")
     opt.add_argument("--batch-size", type=int, default=1)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
