@@ -11,7 +11,7 @@
 #   1. the CPU/CUDA agreement test (tests/test_depth_checkpoint.py::test_cpu_and_cuda_agree);
 #   2. `lite` training from the shipped preview for TRAIN_MINUTES (default 5) at 320x256, bf16, batch 8,
 #      data rendered by 14 workers, the CPU runs' recipe (L1 loss, scale jitter $SCALE_JITTER, default
-#      0.15); the weights (model.pt) and log come back under $OUT;
+#      0.4, lite_v17); the weights (model.pt) and log come back under $OUT;
 #   3. `recon bench depth` of `paper` at bf16 with torch.compile (target <= 15 ms/frame) and of `lite`.
 # Back here: select and ship as after a CPU run (docs/model_card.md), from the returned files.
 set -uo pipefail
@@ -37,7 +37,7 @@ log="$OUT/session.log"
     echo "== 2. training, $TRAIN_MINUTES minutes"
     timeout $((TRAIN_MINUTES * 60 + 150)) python3 -m apps.cli train --synthetic --config lite --init lite-preview \
         --device cuda --amp bf16 --workers 14 --batch-size 8 --lr 3e-4 --warmup-steps 50 --low-res none \
-        --loss l1 --scale-jitter "${SCALE_JITTER:-0.15}" \
+        --loss l1 --scale-jitter "${SCALE_JITTER:-0.4}" \
         --minutes "$TRAIN_MINUTES" --val-every 250 --checkpoint-every 0 --threads 2 --seed 2000 --out /tmp/gpu_run
     cp /tmp/gpu_run/model.pt "$OUT/lite_gpu.pt" && cp /tmp/gpu_run/log.jsonl "$OUT/lite_gpu_log.jsonl"
 
