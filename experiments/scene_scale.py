@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def scores(estimator, scan, scale: float, weights: str) -> dict[str, float]:
-    """Mean per-frame Abs Rel, within 5 cm and median ratio of ESTM on `scan` seen `scale` times larger."""
+    """Mean per-frame Abs Rel, within 5 cm, median ratio and confidence of ESTM on `scan` seen `scale` times larger."""
     from depth.metrics import depth_metrics, on_gt_grid
     from depth.options import DepthOptions
     from poses.scale import transform_scan
