@@ -57,6 +57,9 @@ class ESTConfig:
     memory_size: int = 2
     # RefineNet (1/2 and full resolution)
     refine_channels: tuple[int, int] = (32, 16)
+    # Rescale each refined map to the median of the EST stage's depth, so the image-guided stages shape
+    # the depth but cannot move its scale (in `lite` they pulled it toward the training rooms' size)
+    refine_keeps_scale: bool = False
 
     def __post_init__(self):
         if self.fusion not in FUSIONS:
@@ -114,10 +117,11 @@ COMPACT = ESTConfig(
 )
 
 # The default from v2 on (docs/depth.md, "`lite`"): an ImageNet-pretrained
-# EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata; EST parts as in compact.
+# EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata, a scale-keeping RefineNet; EST parts as in compact.
 LITE = COMPACT.replace(
     name="lite", num_planes=64, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,
-    match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16))
+    match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16),
+    refine_keeps_scale=True)
 
 # Smallest network with every part, for tests and smoke runs (not a shipped configuration).
 TINY = COMPACT.replace(

@@ -84,9 +84,9 @@ def test_soft_argmax_recovers_plane_depth():
     assert torch.allclose(conf[0, 0], torch.tensor([[1.0, 1.0], [1.0, 0.5]]))
 
 
-@pytest.mark.parametrize("fusion", ["adaptive", "concat"])
-def test_every_parameter_receives_a_gradient(fusion):
-    cfg = TINY.replace(fusion=fusion)
+@pytest.mark.parametrize("fusion,keeps_scale", [("adaptive", False), ("concat", False), ("adaptive", True)])
+def test_every_parameter_receives_a_gradient(fusion, keeps_scale):
+    cfg = TINY.replace(fusion=fusion, refine_keeps_scale=keeps_scale)
     net = ESTNet(cfg).train()
     images, K, poses, rng = _window(cfg, batch=1, views=5)
     gt = torch.rand(1, 3, cfg.image_height, cfg.image_width) * 3 + 1.5
@@ -96,6 +96,25 @@ def test_every_parameter_receives_a_gradient(fusion):
     missing = [n for n, p in net.named_parameters() if p.grad is None or not torch.any(p.grad != 0)]
     assert not missing, f"no gradient for {missing}"
     assert len(per_stage) == 4 and all(x > 0 for x in per_stage)
+
+
+def test_refine_keeps_scale_holds_the_est_stage_median():
+    """A RefineNet that pushes every pixel far away moves the scale unless `refine_keeps_scale` holds it to D1's
+    median; the flag adds no weights, so trained weights load either way."""
+    images, K, poses, rng = _window(TINY)
+    free = ESTNet(TINY).eval()
+    kept = ESTNet(TINY.replace(refine_keeps_scale=True)).eval()
+    kept.load_state_dict(free.state_dict(), strict=True)
+    medians = {}
+    for name, net in (("free", free), ("kept", kept)):
+        with torch.no_grad():
+            net.refine.stage2_depth.bias.fill_(2.0)
+            d1, d2, d3 = net(images, K, poses, rng, targets=[(1, (0, 2))])[0].depths[1:]
+        medians[name] = (d1.median().item(), d2.median().item(), d3.median().item())
+    d1, d2, d3 = medians["kept"]
+    assert d2 == pytest.approx(d1, rel=1e-5) and d3 == pytest.approx(d1, rel=1e-5)
+    assert medians["free"][0] == pytest.approx(d1)  # same weights, same EST stage
+    assert medians["free"][2] > 1.2 * d1  # without the flag the pushed stage moves the scale
 
 
 def test_memory_changes_the_fused_output():

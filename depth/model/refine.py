@@ -14,13 +14,21 @@ def _to_logit(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.
     return torch.log(t) - torch.log1p(-t)
 
 
+def keep_median(depth: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """`depth` (B, 1, H, W) rescaled per item so its median equals the median of `reference` (B, 1, h, w)."""
+    ratio = reference.flatten(1).median(1).values / depth.flatten(1).median(1).values.clamp_min(1e-6)
+    return depth * ratio[:, None, None, None]
+
+
 class RefineNet(nn.Module):
     """Coarse depth (B, 1, h, w) + guidance -> depth at (2h, 2w) and (4h, 4w).
 
     Stage 1 reads the context map and the fused plane logits at 1/4, upsamples, adds the
     1/2-res encoder feature; stage 2 upsamples again and adds the RGB image. Each stage
     predicts a correction in logit space of the normalised depth, so the output stays
-    inside [min_depth, max_depth] and starts as the upsampled coarse depth.
+    inside [min_depth, max_depth] and starts as the upsampled coarse depth. With
+    `cfg.refine_keeps_scale` both outputs are rescaled to the coarse depth's median (then clamped to
+    the range): the stages add edges and detail, the scale stays the EST stage's.
     """
 
     def __init__(self, cfg: ESTConfig, half_channels: int):
@@ -32,6 +40,7 @@ class RefineNet(nn.Module):
         self.stage2_in = conv2d_bn(c1, c2)
         self.stage2_out = conv2d_bn(c2 + 3, c2)
         self.stage2_depth = nn.Conv2d(c2, 1, 3, 1, 1)
+        self.keeps_scale = cfg.refine_keeps_scale
 
     def forward(self, depth: torch.Tensor, context: torch.Tensor, logits: torch.Tensor, half: torch.Tensor,
                 image: torch.Tensor, depth_range: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -46,4 +55,7 @@ class RefineNet(nn.Module):
         x = self.stage2_out(torch.cat([x, image], 1))
         up = F.interpolate(depth_half, scale_factor=2, mode="bilinear", align_corners=False)
         depth_full = lo + (hi - lo) * torch.sigmoid(_to_logit(up, lo, hi) + self.stage2_depth(x))
+        if self.keeps_scale:
+            depth_half = torch.minimum(torch.maximum(keep_median(depth_half, depth), lo), hi)
+            depth_full = torch.minimum(torch.maximum(keep_median(depth_full, depth), lo), hi)
         return depth_half, depth_full
