@@ -63,3 +63,25 @@ def test_recon_bench_depth_json(capsys):
         assert key in result
     assert result["config"] == "compact" and result["params_m"] == pytest.approx(0.692, abs=0.001)
     assert 15 < result["gmacs"] < 20 and result["s_per_frame"] > 0 and result["frames"] == 1
+
+
+def test_recon_train_takes_the_config_of_the_weights_it_starts_from(scan_dir, tmp_path, capsys):
+    # weights trained under a changed config (here `tiny` with the scale-keeping RefineNet, no named config)
+    # train on without restating it; a --config that contradicts them is refused
+    import torch
+
+    from depth.checkpoint import load_checkpoint, save_checkpoint
+    from depth.config import TINY
+    from depth.model import ESTNet
+
+    cfg = TINY.replace(refine_keeps_scale=True)
+    torch.manual_seed(0)
+    start = save_checkpoint(tmp_path / "start.pt", ESTNet(cfg), cfg, {"steps": 3})
+    out = tmp_path / "t"
+    assert main(["-q", "train", str(scan_dir), "--init", str(start), "--out", str(out), "--max-steps", "4",
+                 "--threads", "1", "--no-augment"]) == 0
+    trained = load_checkpoint(out / "model.pt")
+    assert trained.config == cfg and trained.metadata["steps"] == 4
+    assert main(["train", str(scan_dir), "--init", str(start), "--out", str(tmp_path / "u"), "--max-steps", "4",
+                 "--config", "compact"]) == 2
+    assert "differs in" in capsys.readouterr().err

@@ -34,7 +34,8 @@ def add_arguments(p) -> None:
     p.add_argument("--val", nargs="*", default=[], metavar="SCAN",
                    help="validation scans (default with --synthetic: 8 clips of held-out synthetic rooms)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for checkpoints and logs")
-    p.add_argument("--config", default="lite", help="network config: lite, compact or paper (default lite)")
+    p.add_argument("--config", help="network config: lite, compact or paper (default: the config stored in the "
+                                     "--init or --resume weights, else lite)")
     p.add_argument("--depth-range", nargs=2, type=float, default=(0.25, 10.0), metavar=("MIN", "MAX"),
                    help="planes of every synthetic clip, in metres, recorded in the weights (default 0.25 10)")
     stop = p.add_argument_group("when to stop (the first that comes)")
@@ -180,22 +181,33 @@ def _data(args: argparse.Namespace, cfg):
         **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 
+def _config(args: argparse.Namespace):
+    """The named --config, else the one the starting weights were trained with (so weights trained under a
+    changed config, e.g. `refine_keeps_scale`, train on as they are), else `lite`."""
+    from depth.checkpoint import load_checkpoint
+    from depth.config import get_config
+
+    start = args.init or args.resume
+    if args.config is None and start is not None:
+        return load_checkpoint(start).config
+    return get_config(args.config or "lite")
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from depth.config import get_config
     from depth.train import TrainOptions, train
     from recon.errors import ReconError
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = get_config(args.config)
+    cfg = _config(args)
     deadline = deadline_time(args)
     if args.synthetic and args.max_steps is None and deadline is None:
         raise ReconError("recon train --synthetic: the stream is endless, pass --max-steps, --deadline or --minutes")
     train_data, val_data = _data(args, cfg)
     opts = TrainOptions(
-        config=args.config, epochs=args.epochs, max_steps=args.max_steps, deadline=deadline,
+        config=cfg.name, epochs=args.epochs, max_steps=args.max_steps, deadline=deadline,
         batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, schedule=args.schedule,
         lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
@@ -205,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         fp16_export=args.fp16_export)
     log.info("training %s on %s (%d validation clips)", cfg.name,
              "synthetic rooms" if args.synthetic else f"{len(train_data)} clips", len(val_data) if val_data else 0)
-    result = train(train_data, args.out, opts, val_data=val_data, resume=args.resume)
+    result = train(train_data, args.out, opts, val_data=val_data, resume=args.resume, model_config=cfg)
     last = f", last loss {result.losses[-1]:.4f}" if result.losses else ""
     print(f"trained {result.steps} steps ({result.epochs} epochs){last}; weights {result.model_path}")
     return 0
