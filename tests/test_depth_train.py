@@ -118,6 +118,37 @@ def test_resume_continues_exactly(tmp_path):
         train(data, tmp_path / "c", _quiet(max_steps=1), model_config=TINY, resume=straight.model_path)
 
 
+def test_recalibrated_batchnorm_holds_the_plain_mean_over_its_batches():
+    """experiments/precise_bn.py"""
+    from depth.model import ESTNet
+    from experiments.precise_bn import recalibrate_batchnorm
+
+    torch.manual_seed(0)
+    net = ESTNet(TINY)
+    batches = list(torch.utils.data.DataLoader(ClipDataset([plane_scan(7, 96, 64, step=0.08, seed=s) for s in (1, 2)],
+                                                           CLIP), 1))
+    weights = {k: v.clone() for k, v in net.state_dict().items() if "running" not in k and "num_batches" not in k}
+    bn = next(m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d))
+
+    def stats(which):
+        recalibrate_batchnorm(net, which)
+        return bn.running_mean.clone(), bn.running_var.clone()
+
+    per_batch = [stats([b]) for b in batches]
+    both = stats(batches)
+    # every batch calls each BatchNorm equally often, so the mean over all is the mean of the per-batch means
+    assert torch.allclose(both[0], torch.stack([m for m, _ in per_batch]).mean(0), atol=1e-5)
+    assert torch.allclose(both[1], torch.stack([v for _, v in per_batch]).mean(0), atol=1e-5)
+    assert not torch.allclose(per_batch[0][0], per_batch[-1][0], atol=1e-3)  # the batches do differ
+    assert torch.allclose(stats(batches[::-1])[0], both[0], atol=1e-5)  # order does not matter
+    both = stats(batches)
+    assert not net.training and bn.momentum == 0.1
+    assert all(torch.equal(v, net.state_dict()[k]) for k, v in weights.items())  # weights untouched
+    with pytest.raises(ReconError, match="no batches"):
+        recalibrate_batchnorm(net, [])
+    assert torch.equal(bn.running_mean, both[0])  # and nothing was reset
+
+
 def test_mixed_precision_learns_and_fp16_scaler_state_resumes(tmp_path):
     data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
     torch.manual_seed(0)
