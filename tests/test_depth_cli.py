@@ -85,3 +85,24 @@ def test_recon_train_takes_the_config_of_the_weights_it_starts_from(scan_dir, tm
     assert main(["train", str(scan_dir), "--init", str(start), "--out", str(tmp_path / "u"), "--max-steps", "4",
                  "--config", "compact"]) == 2
     assert "differs in" in capsys.readouterr().err
+
+
+def test_recon_train_sweeps_the_range_the_starting_weights_were_trained_on(tmp_path):
+    # a plane index means a depth only within the trained range: continuing `compact` (0.25-6 m) must not
+    # silently retrain it on the 0.25-10 m default
+    import argparse
+
+    from apps.commands.train import synthetic_depth_range
+    from depth.checkpoint import save_checkpoint
+    from depth.config import TINY
+    from depth.model import ESTNet
+
+    start = save_checkpoint(tmp_path / "s.pt", ESTNet(TINY), TINY, {"steps": 1, "data": {"depth_range": [0.25, 6.0]}})
+    bare = save_checkpoint(tmp_path / "b.pt", ESTNet(TINY), TINY, {"steps": 1})
+
+    def rng(**kw):
+        return synthetic_depth_range(argparse.Namespace(**{"depth_range": None, "init": None, "resume": None, **kw}))
+
+    assert rng(init=str(start)) == (0.25, 6.0) and rng(resume=str(start)) == (0.25, 6.0)
+    assert rng(init=str(start), depth_range=[0.5, 8.0]) == (0.5, 8.0)
+    assert rng(init=str(bare)) == (0.25, 10.0) and rng() == (0.25, 10.0)

@@ -36,8 +36,9 @@ def add_arguments(p) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for checkpoints and logs")
     p.add_argument("--config", help="network config: lite, compact or paper (default: the config stored in the "
                                      "--init or --resume weights, else lite)")
-    p.add_argument("--depth-range", nargs=2, type=float, default=(0.25, 10.0), metavar=("MIN", "MAX"),
-                   help="planes of every synthetic clip, in metres, recorded in the weights (default 0.25 10)")
+    p.add_argument("--depth-range", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
+                   help="planes of every synthetic clip, in metres, recorded in the weights (default: the range the "
+                        "--init or --resume weights were trained on, else 0.25 10)")
     stop = p.add_argument_group("when to stop (the first that comes)")
     stop.add_argument("--max-steps", type=int, default=None, metavar="N", help="total optimiser steps")
     stop.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC wall-clock time (next occurrence)")
@@ -133,6 +134,16 @@ def stream_seed(args: argparse.Namespace, rank: int) -> int:
     return int(np.random.SeedSequence([args.seed, rank, step]).generate_state(1)[0] & 0x3FFFFFFF)
 
 
+def synthetic_depth_range(args: argparse.Namespace) -> tuple[float, float]:
+    """--depth-range, else the range the starting weights were trained on (a plane index means a depth only
+    within it, docs/depth.md), else 0.25-10 m."""
+    from depth.checkpoint import trained_depth_range
+
+    if args.depth_range is not None:
+        return tuple(args.depth_range)
+    return trained_depth_range(args.init or args.resume) or (0.25, 10.0)
+
+
 def training_stream(seed: int, depth_range: tuple[float, float], shard: int):
     """Loader worker `shard`'s synthetic stream: shard 0 (also the only one without workers) draws from `seed`
     itself, every other worker from a seed of its own, so workers render different rooms."""
@@ -169,15 +180,16 @@ def _data(args: argparse.Namespace, cfg):
     from recon.synthetic import iter_training_mix
 
     rank = int(os.environ.get("RANK", "0"))
-    stream = functools.partial(training_stream, stream_seed(args, rank), tuple(args.depth_range))
+    depth_range = synthetic_depth_range(args)
+    stream = functools.partial(training_stream, stream_seed(args, rank), depth_range)
     if args.val:
         val = ClipDataset(scans(args.val), plain)
     else:
-        held_out = iter_training_mix(VAL_SEED, tuple(args.depth_range), clips_per_scene=2)
+        held_out = iter_training_mix(VAL_SEED, depth_range, clips_per_scene=2)
         val = ClipDataset(list(itertools.islice(held_out, VAL_CLIPS)), plain)
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
         "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
-        "depth_range": list(args.depth_range),
+        "depth_range": list(depth_range),
         **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 
