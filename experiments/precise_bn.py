@@ -5,7 +5,8 @@ and write the result as a new checkpoint, to score like any other.
 
 The clips come from the training stream (`recon.synthetic.iter_training_mix`, the checkpoint's trained depth
 range, augmented as `recon train` does) from a seed of their own, never from the held-out rooms.
-Measured on `lite-preview` (docs/model_card.md, 2026-12-04): no gain, so training does not do it.
+Measured 2026-12-04 (docs/depth.md): no gain on `lite-preview`; on a `compact` checkpoint whose last steps had
+moved its statistics, part of the loss back. Training does not do it.
 """
 from __future__ import annotations
 
