@@ -114,14 +114,14 @@ COMPACT = ESTConfig(
     context_block_widths=(32, 48, 64, 96),
     context_decoder_channels=(64, 48),
     refine_channels=(16, 8),
+    refine_keeps_scale=True,  # the shipped weights since 2026-12-04 (docs/depth.md, "`compact` trained with the rescale")
 )
 
 # The default from v2 on (docs/depth.md, "`lite`"): an ImageNet-pretrained
 # EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata, a scale-keeping RefineNet; EST parts as in compact.
 LITE = COMPACT.replace(
     name="lite", num_planes=64, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,
-    match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16),
-    refine_keeps_scale=True)
+    match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16))
 
 # Smallest network with every part, for tests and smoke runs (not a shipped configuration).
 TINY = COMPACT.replace(

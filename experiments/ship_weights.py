@@ -8,8 +8,13 @@ demo room, ICL-NUIM; never 7-Scenes):
 1. ESTM beats the plane sweep on the held-out synthetic scans (mean Abs Rel and mean delta<1.25);
 2. ESTM's mesh F-score beats the plane sweep's on every held-out scan;
 3. with --incumbent (the weights shipped today), ESTM beats the incumbent's ESTM on the mean Abs Rel
-   and the mean mesh F-score over every held-out scan.
-Passing all three writes `<name>.pt`. Passing rule 1 but not all three writes `<name>-preview.pt`,
+   and the mean mesh F-score over every held-out scan;
+4. with --incumbent: ESTM beats the incumbent's ESTM on every held-out scan, Abs Rel and mesh F-score
+   each.
+Passing rules 1, 3 and 2 (or 4 in its place) writes `<name>.pt`, the new default. Rule 4 exists because
+the plane sweep got better after the default shipped, so today's default fails rule 2 itself: it is not
+kept in place of a network that beats it scan by scan. Where the incumbent passes rule 2, rule 4
+implies it; rule 2 is still reported, and failing it is a target still missed (issue 11), not a pass. Passing rule 1 but not those writes `<name>-preview.pt`,
 the training lineage's resume point: not the default, kept in git so training resumes from it on a
 fresh machine (`recon train --init <name>-preview`; runs/ does not survive one: 7 h and then 1 h of
 `lite` training were lost that way), and replaced only by a checkpoint that beats it on the held-out
@@ -59,7 +64,21 @@ def rules(sel: dict, key: str, incumbent: str | None) -> dict[str, bool]:
         print(f"against {incumbent} on {', '.join(both)}: abs_rel {new[0]:.4f} vs {old[0]:.4f}, "
               f"mesh F {new[1]:.3f} vs {old[1]:.3f}")
         verdict[f"beats {incumbent}"] = bool(both) and new[0] < old[0] and new[1] > old[1]
+        verdict[every_scan_rule(incumbent)] = bool(both) and all(
+            sel[key][n]["abs_rel"] < sel[inc][n]["abs_rel"] and sel[key][n]["mesh_fscore"] > sel[inc][n]["mesh_fscore"]
+            for n in both)
     return verdict
+
+
+def every_scan_rule(incumbent: str) -> str:
+    return f"beats {incumbent} on every scan"
+
+
+def is_default(verdict: dict[str, bool], incumbent: str | None) -> bool:
+    """Rules 1 and 3, and rule 2 or, in its place, rule 4 (module docstring)."""
+    if not verdict[DEPTH_RULE] or (incumbent and not verdict[f"beats {incumbent}"]):
+        return False
+    return verdict[MESH_RULE] or bool(incumbent and verdict[every_scan_rule(incumbent)])
 
 
 def beats_preview(sel: dict, key: str, preview: Path) -> bool:
@@ -100,7 +119,7 @@ def main(argv=None) -> int:
     for rule, ok in verdict.items():
         print(f"  {'PASS' if ok else 'FAIL'}  {rule}")
     name = args.name
-    if not all(verdict.values()):
+    if not is_default(verdict, args.incumbent):
         name = f"{args.name}-preview"
         if not verdict[DEPTH_RULE] or not beats_preview(sel, key, WEIGHTS_DIR / f"{name}.pt"):
             print("not shipped")
@@ -112,6 +131,9 @@ def main(argv=None) -> int:
     meta.update({"validation": {"clips": [v for v in val if v["step"] == meta.get("steps")] or val[-1:],
                                 "heldout_scans": {k: v for k, v in sel.items() if k in (key, "planesweep")},
                                 "rules": verdict,
+                                **({"incumbent": {"weights": args.incumbent,
+                                                  "heldout_scans": sel[f"{args.incumbent}:estm_m2"]}}
+                                   if args.incumbent and f"{args.incumbent}:estm_m2" in sel else {}),
                                 "selection": "held-out synthetic rooms, the demo room and ICL-NUIM; never 7-Scenes"},
                  "source_checkpoint": str(args.checkpoint)})
     out = save_checkpoint(WEIGHTS_DIR / f"{name}.pt", build_model(ck), ck.config, meta, fp16=True)

@@ -102,7 +102,7 @@ def test_refine_keeps_scale_holds_the_est_stage_median():
     """A RefineNet that pushes every pixel far away moves the scale unless `refine_keeps_scale` holds it to D1's
     median; the flag adds no weights, so trained weights load either way."""
     images, K, poses, rng = _window(TINY)
-    free = ESTNet(TINY).eval()
+    free = ESTNet(TINY.replace(refine_keeps_scale=False)).eval()
     kept = ESTNet(TINY.replace(refine_keeps_scale=True)).eval()
     kept.load_state_dict(free.state_dict(), strict=True)
     medians = {}

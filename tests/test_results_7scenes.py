@@ -59,9 +59,17 @@ def test_shipped_weights_load_and_describe_themselves():
     for key in ("data", "steps", "hardware", "validation"):
         assert meta.get(key), key
     assert meta["steps"] > 0 and len(meta["data"]["depth_range"]) == 2
-    # shipped as the default only because ESTM's meshes beat the plane sweep's on every held-out scan
+    # shipped as the default only because, on the recorded held-out figures, ESTM's depth beats the plane sweep's
+    # and its meshes beat the plane sweep's on every scan (rule 2) or it beats the incumbent it replaced on every
+    # scan, Abs Rel and mesh F each (rule 4; experiments/ship_weights.py)
     heldout = meta["validation"]["heldout_scans"]
     estm = next(v for k, v in heldout.items() if k.endswith(":estm_m2"))
-    assert all(estm[n]["mesh_fscore"] > heldout["planesweep"][n]["mesh_fscore"] for n in heldout["planesweep"])
+    sweep = heldout["planesweep"]
+    assert all(estm[n]["abs_rel"] < sweep[n]["abs_rel"] for n in sweep if n.startswith("synthetic"))
+    beats_sweep = all(estm[n]["mesh_fscore"] > sweep[n]["mesh_fscore"] for n in sweep)
+    old = (meta["validation"].get("incumbent") or {}).get("heldout_scans", {})
+    beats_incumbent = bool(old) and all(estm[n]["abs_rel"] < old[n]["abs_rel"]
+                                        and estm[n]["mesh_fscore"] > old[n]["mesh_fscore"] for n in sweep)
+    assert beats_sweep or beats_incumbent
     net = build_model(ck)  # every stored tensor fits; the frozen encoder part comes from its package
     assert all(torch.isfinite(p).all() for p in net.parameters())
