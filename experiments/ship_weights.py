@@ -15,12 +15,12 @@ Passing rules 1, 3 and 2 (or 4 in its place) writes `<name>.pt`, the new default
 the plane sweep got better after the default shipped, so today's default fails rule 2 itself: it is not
 kept in place of a network that beats it scan by scan. Where the incumbent passes rule 2, rule 4
 implies it; rule 2 is still reported, and failing it is a target still missed (issue 11), not a pass.
-Passing rule 1 but not those writes `<name>-preview.pt`, the training lineage's resume point: not the default, kept in git so training resumes from it on a
-fresh machine (`recon train --init <name>-preview`; runs/ does not survive one: 7 h and then 1 h of
-`lite` training were lost that way), and replaced only by a checkpoint that beats it on the held-out
-mean Abs Rel (against the figures the preview shipped with, from its metadata; a preview file without
-them must be scored by the selection). Its metadata says whether it
-beats the incumbent. Otherwise nothing is written (exit 1). Stores float16 weights (no optimiser
+Passing rule 1 but not those writes `<name>-preview.pt`, the training lineage's resume point: not the
+default, kept in git so training resumes from it on a fresh machine (`recon train --init <name>-preview`;
+runs/ does not survive one: 7 h and then 1 h of `lite` training were lost that way), and replaced only
+by a checkpoint that beats it on the held-out mean Abs Rel (against the figures the preview shipped
+with, from its metadata; a preview file without them must be scored by the selection). Its metadata
+says whether it beats the incumbent. Otherwise nothing is written (exit 1). Stores float16 weights (no optimiser
 state) with metadata: data, steps, hardware, training time, clip validation, the held-out figures and
 the rule results.
 """
