@@ -87,9 +87,29 @@ def _no_token_notice(record: logging.LogRecord) -> bool:
     return "Token authentication is enabled" not in record.getMessage()
 
 
-def run_one_logged(config: RunConfig, level: int = logging.INFO) -> dict:
-    """`run_one` in a worker process (a Ray task): the pipeline's stage lines go to the worker's stderr,
-    which Ray forwards to the driver prefixed by the task's name."""
+def scan_threads(cpus_per_scan: float | None, workers: int) -> int:
+    """Threads each scan's process computes with: its share of the cores (`--cpus-per-scan`, or the cores
+    over `--workers`), so scans running at once do not oversubscribe the machine, and a scan gets the same
+    thread count, hence the same floating-point sums, under either engine."""
+    if cpus_per_scan is None:
+        return max(1, (os.cpu_count() or 1) // max(1, workers))
+    return max(1, int(cpus_per_scan))
+
+
+def limit_threads(threads: int) -> None:
+    """torch, OpenCV and OpenMP (Open3D reads OMP_NUM_THREADS when it first runs in parallel) in this worker."""
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    import cv2
+    import torch
+
+    torch.set_num_threads(threads)
+    cv2.setNumThreads(threads)
+
+
+def run_one_logged(config: RunConfig, level: int = logging.INFO, threads: int = 1) -> dict:
+    """`run_one` in a worker process (a Ray task) with `threads` threads: the pipeline's stage lines go to the
+    worker's stderr, which Ray forwards to the driver prefixed by the task's name."""
+    limit_threads(threads)
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter("%(message)s"))
     recon_log = logging.getLogger("recon")
@@ -113,17 +133,22 @@ def _configs(inputs: Iterable[Path], out: Path, template: RunConfig) -> list[Run
     return configs
 
 
-def run_local(configs: list[RunConfig], workers: int, on_result: Callable[[dict], None]) -> list[dict]:
-    """A process pool on this machine (one scan per process)."""
+def run_local(configs: list[RunConfig], workers: int, threads: int | None,
+              on_result: Callable[[dict], None]) -> list[dict]:
+    """A process pool on this machine (one scan per process with `threads` threads); one worker runs the
+    scans in this process (None: with its threads as they are)."""
     results = []
     if workers <= 1:
+        if threads is not None:
+            limit_threads(threads)
         for c in configs:
             results.append(run_one(c))
             on_result(results[-1])
         return results
     import multiprocessing
 
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=limit_threads, initargs=(threads,)) as pool:
         futures = [pool.submit(run_one, c) for c in configs]
         for fut in as_completed(futures):
             results.append(fut.result())
@@ -131,7 +156,7 @@ def run_local(configs: list[RunConfig], workers: int, on_result: Callable[[dict]
     return results
 
 
-def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float, gpus_per_scan: float,
+def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float | None, gpus_per_scan: float,
             on_result: Callable[[dict], None]) -> list[dict]:
     """Ray tasks with CPU/GPU requests, on a local Ray instance or the cluster at `address`."""
     # Ray merges lines of different workers that are alike but for words with digits (every scan's
@@ -150,10 +175,12 @@ def run_ray(configs: list[RunConfig], address: str | None, cpus_per_scan: float,
         ray.init(address=address, include_dashboard=False, log_to_driver=True, ignore_reinit_error=True,
                  logging_level=logging.WARNING)
     try:
-        task = ray.remote(num_cpus=cpus_per_scan, num_gpus=gpus_per_scan, max_retries=0)(run_one_logged)
+        cpus = 1.0 if cpus_per_scan is None else cpus_per_scan
+        task = ray.remote(num_cpus=cpus, num_gpus=gpus_per_scan, max_retries=0)(run_one_logged)
+        threads = scan_threads(cpus, 1)
         level = logging.getLogger("recon").getEffectiveLevel()
         # Named after its scan, a task's forwarded lines read `(scan pid=…) depth: done in 3.1 s`.
-        pending = [task.options(name=Path(c.out).name).remote(c, level) for c in configs]
+        pending = [task.options(name=Path(c.out).name).remote(c, level, threads) for c in configs]
         results = []
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -216,12 +243,14 @@ def report_link(name: str) -> str:
 
 
 def run_batch(dataset: str | Path, out: str | Path, template: RunConfig, engine: str = "local", workers: int = 1,
-              address: str | None = None, cpus_per_scan: float = 1.0, gpus_per_scan: float = 0.0,
+              address: str | None = None, cpus_per_scan: float | None = None, gpus_per_scan: float = 0.0,
               on_result: Callable[[dict], None] = lambda r: None) -> dict:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ReconError(f"{out}: exists and is not a folder (--out names the batch folder)")
     template.validate()
+    if cpus_per_scan is not None and not cpus_per_scan > 0:
+        raise ReconError(f"--cpus-per-scan must be > 0, got {cpus_per_scan}")
     if template.evaluation.gt_mesh:  # one broken --gt-mesh is refused once, before any scan runs
         from fusion.mesh import load_mesh
 
@@ -229,7 +258,8 @@ def run_batch(dataset: str | Path, out: str | Path, template: RunConfig, engine:
     configs = _configs(discover_inputs(dataset), out, template)
     out.mkdir(parents=True, exist_ok=True)
     if engine == "local":
-        results = run_local(configs, workers, on_result)
+        in_process = workers <= 1 and cpus_per_scan is None
+        results = run_local(configs, workers, None if in_process else scan_threads(cpus_per_scan, workers), on_result)
     elif engine == "ray":
         results = run_ray(configs, address, cpus_per_scan, gpus_per_scan, on_result)
     else:

@@ -41,7 +41,9 @@ def template():
 def local_run(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("local")
     seen = []
-    return out, run_batch(dataset, out, template(), engine="local", workers=2, on_result=seen.append), seen
+    # One thread per scan, as each Ray task below gets: the same work with the same floating-point sums.
+    return out, run_batch(dataset, out, template(), engine="local", workers=2, cpus_per_scan=1,
+                          on_result=seen.append), seen
 
 
 def test_local_batch_summary_resume_and_failure(dataset, local_run):
@@ -78,8 +80,8 @@ def test_ray_batch_matches_local(dataset, local_run, tmp_path):
     for room in ("room11", "room12"):  # the same deterministic work, run as Ray tasks
         ray_report = json.loads((tmp_path / room / "report.json").read_text())
         local_report = json.loads((local_dir / room / "report.json").read_text())
-        assert ray_report["mesh"] == pytest.approx(local_report["mesh"])
         assert ray_report["depth"] == local_report["depth"]
+        assert ray_report["mesh"] == pytest.approx(local_report["mesh"])
 
 
 def test_list_file_and_bad_dataset(dataset, tmp_path):
@@ -91,6 +93,9 @@ def test_list_file_and_bad_dataset(dataset, tmp_path):
     assert summary["counts"]["done"] == 1
     with pytest.raises(ReconError, match="no scan found"):
         run_batch(tmp_path / "out" / "room11" / "depth", tmp_path / "x", template())
+    with pytest.raises(ReconError, match="--cpus-per-scan must be > 0"):
+        run_batch(listing, tmp_path / "y", template(), cpus_per_scan=0)
+    assert not (tmp_path / "y").exists()
 
 
 def test_skip_check_covers_every_stage(dataset, local_run, tmp_path):

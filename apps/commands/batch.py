@@ -23,7 +23,9 @@ def add_arguments(p) -> None:
                    help="local process pool or Ray tasks")
     p.add_argument("--workers", type=int, default=1, help="local: scans at once")
     p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
-    p.add_argument("--cpus-per-scan", type=float, default=1.0, help="ray: CPUs each scan's task requests")
+    p.add_argument("--cpus-per-scan", type=float, default=None,
+                   help="CPU threads each scan computes with; ray: also the CPUs its task requests "
+                        "(default: local the cores over --workers, ray 1)")
     p.add_argument("--gpus-per-scan", type=float, default=0.0, help="ray: GPUs each scan's task requests")
     options.add_format(p)
     add_pipeline_args(p, with_input=False)
