@@ -13,6 +13,7 @@ scan's size; with `crop`, pixels outside the window get depth 0 (invalid) and co
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import os
 from typing import Callable, Iterator
@@ -114,6 +115,29 @@ class _Pass:
                           list(self.sources[i]))
 
 
+def _copied(value):
+    """A copy of a call's outputs: the tensors, in dataclasses, tuples and lists."""
+    if isinstance(value, torch.Tensor):
+        return value.clone()
+    if dataclasses.is_dataclass(value):
+        return dataclasses.replace(value, **{f.name: _copied(getattr(value, f.name))
+                                             for f in dataclasses.fields(value) if f.init})
+    if isinstance(value, (list, tuple)):
+        return type(value)(_copied(v) for v in value)
+    return value
+
+
+def _graph_replay(call: Callable) -> Callable:
+    """`call` (compiled with CUDA graphs) returning copies: a graph's next replay overwrites its output
+    buffers, while a pass keeps features and memory entries over several frames."""
+
+    def replay(*args, **kwargs):
+        torch.compiler.cudagraph_mark_step_begin()
+        return _copied(call(*args, **kwargs))
+
+    return replay
+
+
 class DepthEstimator:
     """A loaded network on a device, ready to run the learned modes over scans."""
 
@@ -131,13 +155,19 @@ class DepthEstimator:
         """The network's (frame_features, prepare, finish), compiled by torch.compile when asked (once).
 
         Shapes are static (one network size), so compiling pays off: the ESTM loop calls these
-        three per frame, and the memory's growth from 0 to N entries costs N + 1 compiles.
+        three per frame, and the memory's growth from 0 to N entries costs N + 1 compiles. On CUDA
+        they are also recorded as CUDA graphs: an eager `paper` frame launches about 1,400 kernels and
+        waits on those launches more than on the GPU (docs/depth.md "On a GPU").
         """
         m = self.model
         if not compile:
             return m.frame_features, m.prepare, m.finish
         if self._compiled is None:
-            self._compiled = tuple(torch.compile(f, dynamic=False) for f in (m.frame_features, m.prepare, m.finish))
+            if self.device.type == "cuda":
+                self._compiled = tuple(_graph_replay(torch.compile(f, dynamic=False, mode="reduce-overhead"))
+                                       for f in (m.frame_features, m.prepare, m.finish))
+            else:
+                self._compiled = tuple(torch.compile(f, dynamic=False) for f in (m.frame_features, m.prepare, m.finish))
         return self._compiled
 
     @classmethod

@@ -8,11 +8,12 @@
 #
 # On the GPU machine (torch, opencv, scikit-image; no Open3D, so the synthetic rooms are ray cast with the
 # torch caster on CUDA, in spawned loader workers), in this order:
-#   1. the CPU/CUDA agreement test (tests/test_depth_checkpoint.py::test_cpu_and_cuda_agree);
+#   1. the CUDA tests: CPU/CUDA agreement (tests/test_depth_checkpoint.py::test_cpu_and_cuda_agree) and
+#      CUDA graphs against eager (tests/test_depth_inference.py::test_cuda_graphs_give_the_same_depth);
 #   2. `lite` training from the shipped preview for TRAIN_MINUTES (default 4) at 320x256, bf16, batch 8,
 #      data rendered by 14 workers, the CPU runs' recipe (L1 loss, scale jitter $SCALE_JITTER, default
 #      0.4, lite_v17); the weights (model.pt) and log come back under $OUT;
-#   3. `recon bench depth` of `paper` at bf16 with torch.compile (target <= 15 ms/frame) and of `lite`.
+#   3. `recon bench depth` of `paper` at bf16 with --compile (CUDA graphs; target <= 15 ms/frame) and of `lite`.
 # Back here: select and ship as after a CPU run (docs/model_card.md), from the returned files.
 set -uo pipefail
 
@@ -31,8 +32,9 @@ log="$OUT/session.log"
     date -u; nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
     python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda)"
 
-    echo "== 1. CPU/CUDA agreement"
-    timeout 120 python3 -m pytest -q -p no:cacheprovider "tests/test_depth_checkpoint.py::test_cpu_and_cuda_agree"
+    echo "== 1. CUDA tests"
+    timeout 150 python3 -m pytest -q -p no:cacheprovider "tests/test_depth_checkpoint.py::test_cpu_and_cuda_agree" \
+        "tests/test_depth_inference.py::test_cuda_graphs_give_the_same_depth"
 
     echo "== 2. training, $TRAIN_MINUTES minutes"
     timeout $((TRAIN_MINUTES * 60 + 150)) python3 -m apps.cli train --synthetic --config lite --init lite-preview \

@@ -232,6 +232,32 @@ def test_compiled_network_gives_the_same_depth(estimator, scan):
         assert np.allclose(a.depth, b.depth, rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_graphs_give_the_same_depth(scan):
+    """On CUDA `compile` replays CUDA graphs and copies their outputs out: the features and memory entries a
+    pass keeps over frames must not be overwritten by the next replay."""
+    torch.manual_seed(0)
+    cuda = DepthEstimator(ESTNet(TINY), "cuda")
+    eager = _run(cuda, scan, mode="estm", device="cuda")
+    graphed = _run(cuda, scan, mode="estm", device="cuda", compile=True)
+    for a, b in zip(eager, graphed):
+        assert np.allclose(a.depth, b.depth, rtol=1e-3, atol=1e-3)
+
+
+def test_graph_outputs_are_copied():
+    """What a replay returns is copied (tensors inside dataclasses, tuples and lists), not the graph's buffers."""
+    from depth.estimator import _graph_replay
+    from depth.model import MemoryEntry
+
+    key, value = torch.ones(2), torch.zeros(2)
+    entry = MemoryEntry(key, value, torch.eye(4), "f0")
+    out = _graph_replay(lambda: (entry, [key]))()
+    assert out[0].name == "f0" and torch.equal(out[0].key, key) and torch.equal(out[1][0], key)
+    key.add_(1)  # the next replay writing into its buffers
+    assert torch.equal(out[0].key, torch.ones(2)) and torch.equal(out[1][0], torch.ones(2))
+    assert out[0].value.data_ptr() != value.data_ptr()
+
+
 def _frame(index, depth, confidence):
     from depth.options import FrameDepth
     return FrameDepth(index, f"{index:06d}", np.asarray(depth, np.float32), np.asarray(confidence, np.float32), [0])
