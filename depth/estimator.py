@@ -163,11 +163,10 @@ class DepthEstimator:
         if not compile:
             return m.frame_features, m.prepare, m.finish
         if self._compiled is None:
-            if self.device.type == "cuda":
-                self._compiled = tuple(_graph_replay(torch.compile(f, dynamic=False, mode="reduce-overhead"))
-                                       for f in (m.frame_features, m.prepare, m.finish))
-            else:
-                self._compiled = tuple(torch.compile(f, dynamic=False) for f in (m.frame_features, m.prepare, m.finish))
+            graphs = self.device.type == "cuda"
+            calls = (torch.compile(f, dynamic=False, mode="reduce-overhead" if graphs else None)
+                     for f in (m.frame_features, m.prepare, m.finish))
+            self._compiled = tuple(_graph_replay(c) if graphs else c for c in calls)
         return self._compiled
 
     @classmethod
