@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     model = build_model(ck)
     depth_range = tuple(ck.metadata.get("data", {}).get("depth_range") or (0.25, 10.0))
     clip = ClipOptions(width=ck.config.image_width, height=ck.config.image_height, scale_jitter=args.scale_jitter)
-    stream = StreamingClips(functools.partial(training_stream, args.seed, depth_range), clip, seed=args.seed)
+    stream = StreamingClips(functools.partial(training_stream, args.seed, depth_range, False), clip, seed=args.seed)
     t0 = time.time()
     seen = recalibrate_batchnorm(model, itertools.islice(DataLoader(stream, 1), args.clips))
     metadata = dict(ck.metadata, batchnorm_recalibrated={"clips": seen, "seed": args.seed,

@@ -1,4 +1,5 @@
 """`recon depth` / `recon train` / `recon bench depth` through the CLI entry point."""
+import itertools
 import json
 
 import numpy as np
@@ -106,3 +107,13 @@ def test_recon_train_sweeps_the_range_the_starting_weights_were_trained_on(tmp_p
     assert rng(init=str(start)) == (0.25, 6.0) and rng(resume=str(start)) == (0.25, 6.0)
     assert rng(init=str(start), depth_range=[0.5, 8.0]) == (0.5, 8.0)
     assert rng(init=str(bare)) == (0.25, 10.0) and rng() == (0.25, 10.0)
+
+
+def test_training_stream_passes_close_ups_on():
+    from apps.commands.train import training_stream
+
+    def sources(close_ups):
+        clips = itertools.islice(training_stream(7, (0.25, 10.0), close_ups, 0), 3)
+        return [clip.metadata.extra["training_seed"] for clip in clips]
+
+    assert sources(True) == [7, 57, 107] and sources(False) == [7, 57, 7]

@@ -13,8 +13,9 @@ from recon.errors import ReconError
 from recon.geometry import reprojection_disagreement
 from recon.scan import load_scan
 from recon.keyframes import pose_distance
-from recon.synthetic import (Renderer, SensorEffects, SynthConfig, generate_scene, iter_training_scans,
-                             render_scan, texture_library, write_synthetic_scan)
+from recon.synthetic import (Renderer, SensorEffects, SynthConfig, generate_scene, iter_training_mix,
+                             iter_training_scans, render_scan, texture_library, write_synthetic_scan)
+from recon.synthetic.generate import CLOSE_UP_SCENE, CLOSE_UP_WALK
 from recon.synthetic.mesh import Pose2D, Solid
 
 SMALL = SynthConfig(seed=3, frames=40, width=160, height=128)
@@ -205,6 +206,27 @@ def test_training_clips_have_a_useful_baseline():
         assert 0 < lo < hi
         steps = [pose_distance(a, b)[0] for a, b in zip(clip.camera_to_world[:-1], clip.camera_to_world[1:])]
         assert min(steps) >= 0.1 and max(steps) < 0.5
+
+
+def _near_share(clips) -> float:
+    depth = np.concatenate([clip.depth(i).ravel() for clip in clips for i in range(len(clip))])
+    return float(np.mean(depth[depth > 0] < 1.0))
+
+
+def test_close_up_walks_see_more_near_depth():
+    rooms = dict(seed=2, width=64, height=48, keyframe_distance=0.2, clips_per_scene=1)
+    centred = list(itertools.islice(iter_training_scans(**rooms), 16))
+    close = list(itertools.islice(iter_training_scans(**rooms, scene=CLOSE_UP_SCENE, trajectory=CLOSE_UP_WALK), 16))
+    assert _near_share(close) > 2 * _near_share(centred) > 0
+
+
+def test_training_mix_adds_close_ups_as_every_third_clip():
+    def sources(close_ups):
+        clips = itertools.islice(iter_training_mix(5, (0.25, 10.0), sizes=((48, 40),), close_ups=close_ups), 6)
+        return [clip.metadata.extra["training_seed"] for clip in clips]
+
+    assert sources(False) == [5, 55] * 3
+    assert sources(True) == [5, 55, 105] * 2
 
 
 def test_write_scan_with_video_and_transforms(tmp_path):

@@ -29,6 +29,9 @@ def add_arguments(p) -> None:
     p.add_argument("--synthetic", action="store_true",
                    help="train on an endless stream of synthetic rooms (clean and sensor-degraded clips, several "
                         "cameras and aspect ratios) instead of scans; needs --max-steps or a deadline")
+    p.add_argument("--close-ups", action="store_true",
+                   help="with --synthetic: every third clip from a walk close to walls and furniture, in rooms up to "
+                        "12 m across (3-7 times the share of depth under 1 m)")
     p.add_argument("--format", default="auto", help="input format of the scans (default: auto-detect)")
     options.add_selection(p)
     p.add_argument("--val", nargs="*", default=[], metavar="SCAN",
@@ -144,7 +147,7 @@ def synthetic_depth_range(args: argparse.Namespace) -> tuple[float, float]:
     return trained_depth_range(args.init or args.resume) or (0.25, 10.0)
 
 
-def training_stream(seed: int, depth_range: tuple[float, float], shard: int):
+def training_stream(seed: int, depth_range: tuple[float, float], close_ups: bool, shard: int):
     """Loader worker `shard`'s synthetic stream: shard 0 (also the only one without workers) draws from `seed`
     itself, every other worker from a seed of its own, so workers render different rooms."""
     import numpy as np
@@ -153,7 +156,7 @@ def training_stream(seed: int, depth_range: tuple[float, float], shard: int):
 
     if shard:
         seed = int(np.random.SeedSequence([seed, 1 << 20, shard]).generate_state(1)[0] & 0x3FFFFFFF)
-    return iter_training_mix(seed, depth_range)
+    return iter_training_mix(seed, depth_range, close_ups=close_ups)
 
 
 def _data(args: argparse.Namespace, cfg):
@@ -181,7 +184,7 @@ def _data(args: argparse.Namespace, cfg):
 
     rank = int(os.environ.get("RANK", "0"))
     depth_range = synthetic_depth_range(args)
-    stream = functools.partial(training_stream, stream_seed(args, rank), depth_range)
+    stream = functools.partial(training_stream, stream_seed(args, rank), depth_range, args.close_ups)
     if args.val:
         val = ClipDataset(scans(args.val), plain)
     else:
@@ -189,7 +192,7 @@ def _data(args: argparse.Namespace, cfg):
         val = ClipDataset(list(itertools.islice(held_out, VAL_CLIPS)), plain)
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
         "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
-        "depth_range": list(depth_range),
+        "depth_range": list(depth_range), **({"close_ups": True} if args.close_ups else {}),
         **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 

@@ -263,17 +263,31 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
 TRAINING_SIZES = ((320, 240), (352, 198), (320, 256), (240, 320), (198, 352))
 
 
+# Walks that pass close to walls and furniture and look at them (away from the room's middle, with wide
+# look-arounds and more looking down), in rooms up to 12 m across: 3-7 times the share of depth under 1 m
+# that room-centred walks show; near surfaces are where the network errs most (docs/depth.md).
+CLOSE_UP_SCENE = SceneConfig(room_width_m=(3.0, 12.0), camera_clearance_m=0.3)
+CLOSE_UP_WALK = TrajectoryConfig(pitch_deg=(-50.0, -3.0), look_at_room=-0.7, sweep_deg=(30.0, 70.0))
+
+
 def iter_training_mix(seed: int, depth_range: tuple[float, float], keyframe_distance: float = 0.2,
                       hfov_range_deg: tuple[float, float] = (45.0, 90.0),
-                      sizes: tuple[tuple[int, int], ...] = TRAINING_SIZES, clips_per_scene: int = 8) -> Iterator[Scan]:
+                      sizes: tuple[tuple[int, int], ...] = TRAINING_SIZES, clips_per_scene: int = 8,
+                      close_ups: bool = False) -> Iterator[Scan]:
     """The depth network's training stream: clean clips alternating with clips that carry realistic
     sensor effects (noise, motion blur, exposure and white-balance drift, JPEG), cameras of 45-90
     degrees in several aspect ratios, and one fixed `depth_range` (so planes mean the same metres in
     every clip and at inference). Keyframes 0.2 apart: about the baseline inference picks for sources.
+    `close_ups`: every third clip from a close-up walk (CLOSE_UP_SCENE, CLOSE_UP_WALK) with sensor effects.
     """
+    variants = [(0, SensorEffects(), SceneConfig(), TrajectoryConfig()),
+                (50, SensorEffects.realistic(), SceneConfig(), TrajectoryConfig())]
+    if close_ups:
+        variants.append((100, SensorEffects.realistic(), CLOSE_UP_SCENE, CLOSE_UP_WALK))
     streams = [iter_training_scans(seed=seed + offset, keyframe_distance=keyframe_distance, effects=effects,
-                                   hfov_range_deg=hfov_range_deg, sizes=sizes, clips_per_scene=clips_per_scene)
-               for offset, effects in ((0, SensorEffects()), (50, SensorEffects.realistic()))]
+                                   scene=scene, trajectory=walk, hfov_range_deg=hfov_range_deg, sizes=sizes,
+                                   clips_per_scene=clips_per_scene)
+               for offset, effects, scene, walk in variants]
     for pair in zip(*streams):
         for scan in pair:
             scan.metadata = dataclasses.replace(scan.metadata, depth_range=tuple(depth_range))
