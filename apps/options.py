@@ -152,8 +152,8 @@ def add_fusion(parser, with_device: bool = False) -> None:
                              ("--min-weight", "min_weight", "mesh only voxels observed at least this much")):
         g.add_argument(flag, type=float, default=_default(TSDFConfig, name), help=f"{what} (default %(default)s)")
     g.add_argument("--min-confidence", type=float, default=None,
-                   help="drop depth with confidence below this: the depth filter's consistency score (0-1) when "
-                        "the consistency check runs, else the stored confidence maps (default off)")
+                   help="drop depth with confidence below this (0-1): the stored confidence maps (the network's), "
+                        "for depth without them the depth filter's consistency score (default off)")
     g.add_argument("--min-component-area", type=float, default=_default(MeshCleanup, "min_component_area"),
                    metavar="M2", help="drop mesh pieces smaller than this many square metres; 0 keeps all "
                                       "(default %(default)s)")

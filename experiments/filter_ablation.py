@@ -126,7 +126,7 @@ CURVE_QUANTILES = (0.0, 0.2, 0.4, 0.6, 0.8)  # thresholds at these shares of the
 
 
 def confidence_values(scan, folder: Path, depth_filter: FilterConfig) -> np.ndarray:
-    """Every fused pixel's confidence: the stored maps' (<name>.conf.npy) without consistency, else the filter's."""
+    """Every fused pixel's confidence as `depth_filter` serves it: the maps' own, else the consistency score."""
     from fusion.filtering import filtered_depth
     from fusion.tsdf import TSDFConfig
 
@@ -138,16 +138,32 @@ def confidence_values(scan, folder: Path, depth_filter: FilterConfig) -> np.ndar
     return np.concatenate(values)
 
 
+def depth_only(folder: Path) -> Path:
+    """A sibling of `folder` linking its depth maps but not their confidence maps: the filter then serves the
+    consistency score as the confidence, as it does for depth that has none."""
+    from recon.io import CONFIDENCE_SUFFIX
+
+    bare = folder.parent / f"depth_only_{folder.name}"
+    bare.mkdir(exist_ok=True)
+    for f in folder.iterdir():
+        if f.is_file() and not f.name.endswith((CONFIDENCE_SUFFIX, ".conf.npy")) and not (bare / f.name).exists():
+            (bare / f.name).symlink_to(f.resolve())
+    return bare
+
+
 def confidence_curve(scan, folder: Path, log=print) -> dict:
-    """Mesh precision and recall as the confidence threshold rises, for the network's own confidence (no filter)
-    and for the consistency score (default filter): {"network" | "consistency": [{quantile, threshold, scores}]}."""
+    """Mesh precision and recall as the confidence threshold rises: the network's own confidence without the
+    filter and with the default filter (what `recon run` does), and the consistency score (the default filter
+    on the same maps without their confidence): {curve: [{quantile, threshold, scores}]}."""
     curves = {}
-    for name, depth_filter in (("network", FilterConfig(checks=())), ("consistency", FilterConfig())):
-        values = confidence_values(scan, folder, depth_filter)
+    for name, depth_filter, maps in (("network", FilterConfig(checks=()), folder),
+                                     ("network, filtered", FilterConfig(), folder),
+                                     ("consistency", FilterConfig(), depth_only(folder))):
+        values = confidence_values(scan, maps, depth_filter)
         thresholds = [None] + [float(np.quantile(values, q)) for q in CURVE_QUANTILES[1:]]
         rows = {f"{name} >= {t:.3f}" if t is not None else f"{name}: all": (depth_filter, MeshCleanup(), t)
                 for t in thresholds}
-        scored = run_rows(scan, folder, rows, log)
+        scored = run_rows(scan, maps, rows, log)
         curves[name] = [{**scored[r], "quantile": q, "min_confidence": t}
                         for q, t, r in zip(CURVE_QUANTILES, thresholds, rows)]
     return curves

@@ -150,6 +150,21 @@ def test_consistency_score_trades_precision_for_recall_monotonically(room):
     assert precision[-1] > 0.9 > precision[0], precision
 
 
+def test_depth_with_its_own_confidence_keeps_it_and_the_score_still_weighs(room):
+    """A network's depth keeps its confidence through the filter (what --min-confidence reads); the consistency
+    score, served as confidence only to depth without one, still sets the TSDF weights."""
+    own = {i: np.random.default_rng(i).random(room.depth(i).shape).astype(np.float32) for i in range(len(room))}
+    config = FilterConfig(weights=True)
+    with_own = DepthFilter(room, lambda i: DepthMap(room.depth(i), own[i]), config, (0.1, 6.0))
+    without = DepthFilter(room, lambda i: DepthMap(room.depth(i)), config, (0.1, 6.0))
+    for i in (0, 11):
+        a, b = with_own(i), without(i)
+        assert np.array_equal(a.confidence, own[i])
+        assert np.array_equal(a.depth_m, b.depth_m) and np.array_equal(a.weight, b.weight)
+        assert b.confidence is not None and not np.array_equal(b.confidence, own[i])
+        assert np.allclose(b.weight, (1 + config.views * b.confidence) / (1 + config.views))
+
+
 def test_weights_from_the_consistency_score_reach_the_tsdf(room, tmp_path):
     for i, f in enumerate(room.frames):
         save_depth_map(tmp_path, f.name, room.depth(i))
