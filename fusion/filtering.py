@@ -18,8 +18,8 @@ The consistency score, the soft count of agreeing views (each counts 1 - differe
 `views`, is served as the confidence of depth that has none of its own (a user's depth folder); depth with
 its own (the network's peak plane probability) keeps it: a threshold on that (`--min-confidence`) keeps
 more mesh F-score than one on the score at 80 and 60 % of the pixels on all four held-out scans
-(docs/evaluation.md compares the two). With
-`weights` the score sets each pixel's TSDF integration weight (1 + agreeing views, scaled to at most 1).
+(docs/evaluation.md compares the two). With `weights` the score sets each pixel's TSDF integration weight
+(1 + agreeing views, scaled to at most 1).
 Vectorised numpy, so it costs a fraction of the depth stage (`recon bench fusion`).
 """
 from __future__ import annotations

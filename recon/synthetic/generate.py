@@ -288,7 +288,7 @@ def iter_training_mix(seed: int, depth_range: tuple[float, float], keyframe_dist
                                    scene=scene, trajectory=walk, hfov_range_deg=hfov_range_deg, sizes=sizes,
                                    clips_per_scene=clips_per_scene)
                for offset, effects, scene, walk in variants]
-    for pair in zip(*streams):
-        for scan in pair:
+    for group in zip(*streams):
+        for scan in group:
             scan.metadata = dataclasses.replace(scan.metadata, depth_range=tuple(depth_range))
             yield scan
