@@ -110,7 +110,7 @@ def add_depth(parser, with_device: bool = False) -> None:
     g = parser.add_argument_group("depth")
     g.add_argument("--mode", choices=MODES, default=None,
                    help="estm, joint, independent: the network; planesweep: classical stereo (sparse, precise); hybrid: "
-                        "the plane sweep's depth where it has one, estm's elsewhere (about 2.5x estm's time). "
+                        "estm refined by a narrow plane sweep around its depth where the images match (about 1.5x estm's time). "
                         "Default: estm with the shipped (or --weights) network; planesweep when none ship")
     g.add_argument("--weights", default=None, metavar="NAME|PATH",
                    help="network weights: a shipped name or a checkpoint path (default: the shipped default)")

@@ -103,17 +103,19 @@ def _project_planes(K_ref: torch.Tensor, K_src: torch.Tensor, ref_to_src: torch.
 
     The point at depth d on pixel p's ray is d * K_ref^-1 p, so its source projection is
     d * (K_src R K_ref^-1 p) + K_src t: the plane-induced homography of the plane z = d.
-    K_ref, K_src: (B,3,3); ref_to_src: (B,4,4); depths: (B,D)
-    -> uv (B, D, H, W, 2) source pixel coordinates, z (B, D, H, W) source-camera depth.
+    K_ref, K_src: (B,3,3); ref_to_src: (B,4,4); depths: (B,D) planes, or (B,D,H,W) a depth per pixel
+    (hypotheses around a prior map) -> uv (B, D, H, W, 2) source pixel coordinates, z (B, D, H, W)
+    source-camera depth.
     """
     pix = pixel_grid(height, width, K_ref.dtype, K_ref.device)  # (3, HW)
     rays = K_src @ ref_to_src[:, :3, :3] @ torch.linalg.inv(K_ref) @ pix  # (B, 3, HW)
     offset = K_src @ ref_to_src[:, :3, 3:]  # (B, 3, 1)
-    pts = depths[:, :, None, None] * rays[:, None] + offset[:, None]  # (B, D, 3, HW)
+    b, d = depths.shape[:2]
+    scale = depths.reshape(b, d, 1, -1)  # (B, D, 1, 1 or HW)
+    pts = scale * rays[:, None] + offset[:, None]  # (B, D, 3, HW)
     z = pts[:, :, 2]
     safe_z = torch.where(z.abs() < 1e-6, torch.full_like(z, 1e-6), z)
     uv = pts[:, :, :2] / safe_z[:, :, None]
-    b, d = depths.shape
     return uv.permute(0, 1, 3, 2).reshape(b, d, height, width, 2), z.reshape(b, d, height, width)
 
 
@@ -134,7 +136,8 @@ def plane_sweep_warp(src_features: torch.Tensor, K_ref: torch.Tensor, K_src: tor
     """Warp source features into the reference view at every depth plane (bilinear).
 
     src_features: (B, C, Hs, Ws); K_ref, K_src: (B, 3, 3) at the feature resolution;
-    poses (B, 4, 4) camera-to-world; depths: (B, D); ref_size (H, W) of the reference
+    poses (B, 4, 4) camera-to-world; depths: (B, D) fronto-parallel planes, or (B, D, H, W) one
+    depth per reference pixel (H, W as ref_size); ref_size (H, W) of the reference
     grid (default: the source's).
     -> warped (B, C, D, H, W), valid (B, D, H, W) bool: sample inside the source and in front of it.
     """

@@ -1,8 +1,8 @@
 """The depth stage: depth (+ confidence) for every frame of a canonical scan, written to a folder.
 
 Modes: `estm`, `joint`, `independent` (the network, `depth.estimator`), `planesweep` (the
-classical baseline, `depth.planesweep`, no weights needed) and `hybrid` (the plane sweep's depth
-where it has one, ESTM's elsewhere: `depth.hybrid`). Each frame's sources are chosen by
+classical baseline, `depth.planesweep`, no weights needed) and `hybrid` (ESTM's depth refined by a
+narrow plane sweep around it: `depth.hybrid`). Each frame's sources are chosen by
 pose distance (`recon.keyframes.select_sources`). Files and resuming: `depth.store`.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from recon.scan import Scan
 
 from .checkpoint import DEFAULT_WEIGHTS, weights_digest
 from .estimator import DepthEstimator, TemporalMemory
-from .hybrid import merge_streams
+from .hybrid import refine_frames
 from .options import DepthOptions, FrameDepth, frame_sources, scan_depth_range
 from .planesweep import run_planesweep
 from .store import DepthStore
@@ -58,8 +58,7 @@ def _results(scan: Scan, opts: DepthOptions, estimator: DepthEstimator | None, m
     if opts.mode == "planesweep":
         return run_planesweep(scan, opts, skip)
     if opts.mode == "hybrid":
-        return merge_streams(estimator.run(scan, replace(opts, mode="estm"), memory, skip),
-                             run_planesweep(scan, opts, skip))
+        return refine_frames(scan, estimator.run(scan, replace(opts, mode="estm"), memory, skip), opts.planesweep)
     return estimator.run(scan, opts, memory, skip)
 
 

@@ -37,6 +37,8 @@ class PlaneSweepOptions:
     min_agreeing_sources: int = 2
     agreement_planes: float = 2.0
     width: int = 320  # working width (height follows the aspect ratio)
+    refine_band: float = 0.5  # `hybrid`: the sweep around the network's depth spans depth x (1 +- band)
+    refine_steps: int = 33  # `hybrid`: depths tried per pixel in that band
 
 
 @dataclass
@@ -79,6 +81,9 @@ class DepthOptions:
         if self.depth_range is not None:
             with naming("--depth-range"):
                 check_depth_range(self.depth_range)
+        if not (0 < self.planesweep.refine_band < 10 and self.planesweep.refine_steps >= 3):
+            raise ReconError("hybrid refinement: refine_band must be in (0, 10) and refine_steps >= 3, got "
+                             f"{self.planesweep.refine_band}, {self.planesweep.refine_steps}")
         self.sources.validate()
         return self
 

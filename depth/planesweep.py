@@ -13,6 +13,7 @@ plane near the chosen one. Invalid pixels are 0.
 from __future__ import annotations
 
 import collections
+import math
 from typing import Iterator
 
 import torch
@@ -50,6 +51,54 @@ def to_gray(rgb: torch.Tensor) -> torch.Tensor:
     return (rgb * w).sum(-3)
 
 
+def _matching_costs(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
+                    src_camera_to_world: torch.Tensor, depths: torch.Tensor, window: int
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """1 - NCC of every source against the reference at every depth hypothesis.
+
+    ref (H, W), sources (S, H, W) grey; depths (D,) planes or (D, H, W) one depth per pixel
+    -> costs (S, D, H, W) (NaN where the window is not wholly inside that source), the reference's
+    window variance (H, W) (its texture).
+    """
+    r = ref[None, None]
+    mu_r = _box(r, window)
+    var_r = (_box(r * r, window) - mu_r * mu_r).clamp_min(0)
+    costs = []
+    for s in range(sources.shape[0]):
+        warped, valid = plane_sweep_warp(sources[s][None, None], K[None], K[None], ref_camera_to_world[None],
+                                         src_camera_to_world[s][None], depths[None], ref_size=tuple(ref.shape))
+        x = warped[0, 0].unsqueeze(1)  # (D, 1, H, W)
+        mu_s = _box(x, window)
+        var_s = (_box(x * x, window) - mu_s * mu_s).clamp_min(0)
+        ncc = (_box(x * r, window) - mu_s * mu_r) / torch.sqrt(var_r * var_s + 1e-6)
+        full = _box(valid[0].unsqueeze(1).to(ref.dtype), window) > 0.999  # the whole window inside the source
+        costs.append(torch.where(full, 1.0 - ncc, torch.full_like(ncc, float("nan")))[:, 0])
+    return torch.stack(costs), var_r[0, 0]
+
+
+def _aggregated_cost(costs: torch.Tensor, window: int) -> torch.Tensor:
+    """(S, D, H, W) per-source costs -> (D, H, W): the mean over the sources that see the pixel (2 where
+    none does), averaged over a window."""
+    seen = torch.isfinite(costs)
+    mean_cost = torch.where(seen, costs, torch.zeros_like(costs)).sum(0) / seen.sum(0).clamp_min(1)
+    mean_cost = torch.where(seen.any(0), mean_cost, torch.full_like(mean_cost, 2.0))
+    return _box(mean_cost[:, None], window)[:, 0]
+
+
+def _best_hypothesis(agg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(D, H, W) cost -> the winner's index (H, W), its cost, the sub-hypothesis index from a parabola
+    through it and its neighbours, and where that fit holds (an interior minimum)."""
+    d = agg.shape[0]
+    best = agg.argmin(0)
+    c0 = agg.gather(0, best[None])[0]
+    cm = agg.gather(0, (best - 1).clamp_min(0)[None])[0]
+    cp = agg.gather(0, (best + 1).clamp_max(d - 1)[None])[0]
+    curvature = cm - 2 * c0 + cp
+    interior = (best > 0) & (best < d - 1) & (curvature > 1e-6)
+    offset = torch.where(interior, 0.5 * (cm - cp) / curvature.clamp_min(1e-6), torch.zeros_like(c0))
+    return best, c0, best.to(agg.dtype) + offset.clamp(-0.5, 0.5), interior
+
+
 @torch.no_grad()
 def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
                       src_camera_to_world: torch.Tensor, depth_range: tuple[float, float],
@@ -65,50 +114,49 @@ def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor,
     dt = ref.dtype
     lo = torch.tensor([depth_range[0]], dtype=dt, device=ref.device)
     hi = torch.tensor([depth_range[1]], dtype=dt, device=ref.device)
-    planes = depth_planes(lo, hi, opts.num_planes, opts.spacing)
-    k = opts.ncc_window
-    r = ref[None, None]
-    mu_r = _box(r, k)
-    var_r = (_box(r * r, k) - mu_r * mu_r).clamp_min(0)
-    costs = []
-    for s in range(s_count):
-        warped, valid = plane_sweep_warp(sources[s][None, None], K[None], K[None], ref_camera_to_world[None],
-                                         src_camera_to_world[s][None], planes)
-        x = warped[0, 0].unsqueeze(1)  # (D, 1, H, W)
-        mu_s = _box(x, k)
-        var_s = (_box(x * x, k) - mu_s * mu_s).clamp_min(0)
-        cov = _box(x * r, k) - mu_s * mu_r
-        ncc = cov / torch.sqrt(var_r * var_s + 1e-6)
-        full = _box(valid[0].unsqueeze(1).to(dt), k) > 0.999  # the whole window inside the source
-        cost = torch.where(full, 1.0 - ncc, torch.full_like(ncc, float("nan")))
-        costs.append(cost[:, 0])
-    costs = torch.stack(costs)  # (S, D, H, W)
-    seen = torch.isfinite(costs)
-    mean_cost = torch.where(seen, costs, torch.zeros_like(costs)).sum(0) / seen.sum(0).clamp_min(1)
-    mean_cost = torch.where(seen.any(0), mean_cost, torch.full_like(mean_cost, 2.0))
-    agg = _box(mean_cost[:, None], opts.aggregation_window)[:, 0]  # (D, H, W)
-    best = agg.argmin(0)  # (H, W)
     d = opts.num_planes
-    c0 = agg.gather(0, best[None])[0]
-    cm = agg.gather(0, (best - 1).clamp_min(0)[None])[0]
-    cp = agg.gather(0, (best + 1).clamp_max(d - 1)[None])[0]
-    curvature = cm - 2 * c0 + cp
-    interior = (best > 0) & (best < d - 1) & (curvature > 1e-6)
-    offset = torch.where(interior, 0.5 * (cm - cp) / curvature.clamp_min(1e-6), torch.zeros_like(c0))
-    index = best.to(dt) + offset.clamp(-0.5, 0.5)
+    planes = depth_planes(lo, hi, d, opts.spacing)[0]
+    costs, texture = _matching_costs(ref, sources, K, ref_camera_to_world, src_camera_to_world, planes,
+                                     opts.ncc_window)
+    best, c0, index, _ = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
     depth = depth_at_index(index[None], lo, hi, d, opts.spacing)[0]
     # Multi-view consistency: each source's own aggregated best plane must agree with the choice.
     per_source = _box(torch.nan_to_num(costs, nan=2.0).flatten(0, 1)[:, None], opts.aggregation_window)
     per_source_best = per_source.view(s_count, d, h, w).argmin(1).to(dt)
     # Only sources that see the pixel at the chosen plane can confirm it (others are out of view).
+    seen = torch.isfinite(costs)
     seeing = seen.gather(1, best[None, None].expand(s_count, 1, h, w))[:, 0]  # (S, H, W)
     agreeing = (((per_source_best - index).abs() <= opts.agreement_planes) & seeing).sum(0)
     needed = torch.minimum(seeing.sum(0), torch.full_like(agreeing, opts.min_agreeing_sources))
     score = 1.0 - c0
-    keep = ((score >= opts.min_score) & (var_r[0, 0] >= opts.min_texture)
+    keep = ((score >= opts.min_score) & (texture >= opts.min_texture)
             & (needed > 0) & (agreeing >= needed) & (best > 0) & (best < d - 1))
     zero = torch.zeros_like(depth)
     return torch.where(keep, depth, zero), torch.where(keep, score.clamp(0, 1), zero)
+
+
+@torch.no_grad()
+def refine_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
+                 src_camera_to_world: torch.Tensor, prior: torch.Tensor,
+                 opts: PlaneSweepOptions = PlaneSweepOptions()) -> tuple[torch.Tensor, torch.Tensor]:
+    """A narrow sweep around a prior depth map: each pixel tries `opts.refine_steps` depths within a factor
+    1 +- `opts.refine_band` of its prior (log-spaced), scored like the plane sweep, and takes the best where
+    the match is distinctive (score, texture, a minimum inside the band); elsewhere the prior stays.
+
+    ref (H, W), sources (S, H, W) grey; K (3, 3); poses (4, 4), (S, 4, 4); prior (H, W) metres (0 = none)
+    -> depth (H, W), score (H, W): the match's NCC where refined, 0 where the prior stayed.
+    """
+    steps = opts.refine_steps
+    log_band = math.log1p(opts.refine_band)
+    offsets = torch.linspace(-log_band, log_band, steps, dtype=ref.dtype, device=ref.device)
+    hypotheses = prior.clamp_min(1e-3)[None] * torch.exp(offsets)[:, None, None]  # (D, H, W)
+    costs, texture = _matching_costs(ref, sources, K, ref_camera_to_world, src_camera_to_world, hypotheses,
+                                     opts.ncc_window)
+    _, c0, index, interior = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
+    score = 1.0 - c0
+    refined = interior & (score >= opts.min_score) & (texture >= opts.min_texture) & (prior > 0)
+    factor = torch.exp(-log_band + index * (2 * log_band / (steps - 1)))
+    return torch.where(refined, prior * factor, prior), torch.where(refined, score.clamp(0, 1), torch.zeros_like(score))
 
 
 def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),

@@ -6,7 +6,7 @@
 Each checkpoint (a file, or a shipped name such as the incumbent `compact`) runs ESTM (memory 2) on
 every held-out scan through `experiments.results_7scenes.depth_table` (the same code as the 7-Scenes
 table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
-need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (plane sweep + ESTM). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
+need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (ESTM refined by a narrow sweep). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
 against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale" is the
 median prediction / GT ratio (1 = no scale bias). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     p.add_argument("checkpoints", nargs="*")
     p.add_argument("--out", default="runs/select")
     p.add_argument("--baselines", action="store_true", help="also run planesweep and independent (first checkpoint)")
-    p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (plane sweep + ESTM)")
+    p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (ESTM refined by a narrow sweep)")
     p.add_argument("--threads", type=int, default=None)
     args = p.parse_args(argv)
 

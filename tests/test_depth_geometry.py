@@ -58,6 +58,28 @@ def test_homography_warp_reproduces_reference_only_at_true_plane():
     assert min(errors[:2] + errors[3:]) > 0.03
 
 
+def test_per_pixel_depths_warp_like_planes_and_follow_a_depth_map():
+    h, w = 48, 64
+    K = torch.tensor([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]], dtype=torch.float64)
+    ref_pose, src_pose = torch.eye(4, dtype=torch.float64), _pose(_rot_y(0.05), [0.3, 0.05, 0.1])
+    src = _render_plane(K, src_pose, 2.0, h, w)
+    planes = torch.tensor([[1.6, 2.0, 2.5]], dtype=torch.float64)
+    by_plane, valid_plane = plane_sweep_warp(src[None, None], K[None], K[None], ref_pose[None], src_pose[None], planes)
+    per_pixel = planes[:, :, None, None].expand(1, 3, h, w)
+    by_pixel, valid_pixel = plane_sweep_warp(src[None, None], K[None], K[None], ref_pose[None], src_pose[None],
+                                             per_pixel)
+    assert torch.allclose(by_plane, by_pixel) and torch.equal(valid_plane, valid_pixel)
+    # Half the pixels at the true depth, half 25 % off: only the first half reproduces the reference.
+    ref = _render_plane(K, ref_pose, 2.0, h, w)
+    mixed = torch.full((1, 1, h, w), 2.0, dtype=torch.float64)
+    mixed[..., w // 2:] = 2.5
+    warped, valid = plane_sweep_warp(src[None, None], K[None], K[None], ref_pose[None], src_pose[None], mixed)
+    err = (warped[0, 0, 0] - ref).abs()
+    left, right = valid[0, 0].clone(), valid[0, 0].clone()
+    left[:, w // 2:], right[:, :w // 2] = False, False
+    assert err[left].mean() < 0.01 and err[right].mean() > 0.03
+
+
 def test_plane_sweep_valid_mask_marks_samples_outside_source():
     K = torch.tensor([[[50.0, 0, 15.5], [0, 50.0, 11.5], [0, 0, 1]]])
     src_pose = torch.eye(4)[None].clone()

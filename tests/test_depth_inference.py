@@ -258,41 +258,25 @@ def test_graph_outputs_are_copied():
     assert out[0].value.data_ptr() != value.data_ptr()
 
 
-def _frame(index, depth, confidence):
-    from depth.options import FrameDepth
-    return FrameDepth(index, f"{index:06d}", np.asarray(depth, np.float32), np.asarray(confidence, np.float32), [0])
-
-
-def test_merge_depth_takes_the_sweep_where_it_has_depth():
-    from depth.hybrid import merge_depth
-    net = _frame(3, np.full((4, 6), 2.0), np.full((4, 6), 0.1))
-    sweep_depth = np.zeros((2, 3))
-    sweep_depth[0, 1] = 3.0  # one coarse pixel: 2x2 pixels of the network's grid
-    merged = merge_depth(net, _frame(3, sweep_depth, np.where(sweep_depth > 0, 0.9, 0.0)))
-    swept = np.zeros((4, 6), bool)
-    swept[0:2, 2:4] = True
-    assert merged.depth.shape == (4, 6) and merged.index == 3 and merged.sources == [0]
-    assert (merged.depth[swept] == 3.0).all() and (merged.depth[~swept] == 2.0).all()
-    assert (merged.confidence[swept] == np.float32(0.9)).all() and (merged.confidence[~swept] == np.float32(0.1)).all()
-    with pytest.raises(ReconError, match="hybrid depth"):
-        merge_depth(net, _frame(4, sweep_depth, sweep_depth))
-
-
-def test_hybrid_mode_is_the_sweep_filled_in_by_estm_and_resumes(tmp_path, scan):
+def test_hybrid_mode_is_estm_refined_where_the_images_match_and_resumes(tmp_path, scan):
     torch.manual_seed(0)
     weights = str(save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY, {"note": "random"}))
-    runs = {mode: tmp_path / mode for mode in ("estm", "planesweep", "hybrid")}
+    runs = {mode: tmp_path / mode for mode in ("estm", "hybrid")}
     for mode, out in runs.items():
         summary = estimate_depth(scan, out, DepthOptions(mode=mode, weights=weights, depth_range=(1.0, 5.0)))
-    assert summary["mode"] == "hybrid" and summary["planesweep"] is not None and summary["weights_digest"]
-    swept_any = False
-    for name in scan.names:
-        estm, hybrid = (load_depth_map(runs[m], name) for m in ("estm", "hybrid"))
-        sweep = cv2.resize(load_depth_map(runs["planesweep"], name), estm.shape[::-1], interpolation=cv2.INTER_NEAREST)
-        has = sweep > 0
-        swept_any |= has.mean() > 0.2
-        assert np.array_equal(hybrid[has], sweep[has]) and np.array_equal(hybrid[~has], estm[~has])
-    assert swept_any  # the textured plane gives the sweep most pixels: the test compares something
+    assert summary["mode"] == "hybrid" and summary["planesweep"]["refine_band"] == 0.5 and summary["weights_digest"]
+    band = summary["planesweep"]["refine_band"]
+    gains = []
+    for i, name in enumerate(scan.names):
+        estm, hybrid, gt = load_depth_map(runs["estm"], name), load_depth_map(runs["hybrid"], name), scan.depth(i)
+        gt = cv2.resize(gt, estm.shape[::-1], interpolation=cv2.INTER_NEAREST)
+        moved = hybrid != estm
+        ratio = hybrid[moved] / estm[moved]
+        assert (ratio > 1 / (1 + band) - 1e-3).all() and (ratio < 1 + band + 1e-3).all()
+        ok = moved & (gt > 0)
+        if ok.mean() > 0.2:  # untrained weights: refined pixels sit on the surface, the network's do not
+            gains.append((np.abs(estm[ok] - gt[ok]) / gt[ok]).mean() - (np.abs(hybrid[ok] - gt[ok]) / gt[ok]).mean())
+    assert gains and min(gains) > 0.02
     # interrupted after two frames, it resumes ESTM's memory and writes the same maps
     resumed = tmp_path / "resumed"
     opts = DepthOptions(mode="hybrid", weights=weights, depth_range=(1.0, 5.0))

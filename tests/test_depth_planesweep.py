@@ -42,6 +42,27 @@ def test_planesweep_rejects_textureless_and_wrong_geometry():
     assert (bad > 0).float().mean() < 0.5 * (good > 0).float().mean()
 
 
+def test_refine_depth_pulls_a_wrong_prior_onto_the_surface_and_keeps_it_where_blank():
+    from depth.planesweep import refine_depth
+
+    scan = plane_scan(5, 160, 128, step=0.08)
+    gray, poses, K = _inputs(scan)
+    gt = torch.from_numpy(scan.depth(2))
+    prior = gt * 1.3  # 30 % too far: inside the +-50 % band
+    depth, score = refine_depth(gray[2], gray[[0, 1, 3, 4]], K, poses[2], poses[[0, 1, 3, 4]], prior)
+    refined = score > 0
+    assert refined.float().mean() > 0.6
+    assert np.median(((depth[refined] - gt[refined]).abs() / gt[refined]).numpy()) < 0.01
+    assert torch.equal(depth[~refined], prior[~refined]) and score.max() <= 1.0
+    # A blank image matches nowhere: the prior comes back untouched.
+    flat = torch.full_like(gray, 0.5)
+    depth, score = refine_depth(flat[2], flat[[1, 3]], K, poses[2], poses[[1, 3]], prior)
+    assert torch.equal(depth, prior) and (score == 0).all()
+    # A prior outside the band cannot reach the surface: no minimum inside it, nothing refined.
+    _, score = refine_depth(gray[2], gray[[0, 1, 3, 4]], K, poses[2], poses[[0, 1, 3, 4]], gt * 2.5)
+    assert (score > 0).float().mean() < 0.1
+
+
 @pytest.mark.data
 def test_planesweep_on_real_iclnuim_frames(iclnuim):
     from depth.metrics import on_gt_grid
