@@ -99,6 +99,20 @@ def _best_hypothesis(agg: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, tor
     return best, c0, best.to(agg.dtype) + offset.clamp(-0.5, 0.5), interior
 
 
+def _sources_agree(costs: torch.Tensor, best: torch.Tensor, index: torch.Tensor, opts: PlaneSweepOptions
+                   ) -> torch.Tensor:
+    """Multi-view consistency, (S, D, H, W) costs and the chosen (H, W) hypothesis -> (H, W) bool: of the
+    sources that see the pixel there (others are out of view), at least `min_agreeing_sources` (all of them
+    when fewer see it, and at least one) have their own aggregated best within `agreement_planes` of it."""
+    s_count, d, h, w = costs.shape
+    per_source = _box(torch.nan_to_num(costs, nan=2.0).flatten(0, 1)[:, None], opts.aggregation_window)
+    per_source_best = per_source.view(s_count, d, h, w).argmin(1).to(index.dtype)
+    seeing = torch.isfinite(costs).gather(1, best[None, None].expand(s_count, 1, h, w))[:, 0]  # (S, H, W)
+    agreeing = (((per_source_best - index).abs() <= opts.agreement_planes) & seeing).sum(0)
+    needed = torch.minimum(seeing.sum(0), torch.full_like(agreeing, opts.min_agreeing_sources))
+    return (needed > 0) & (agreeing >= needed)
+
+
 @torch.no_grad()
 def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
                       src_camera_to_world: torch.Tensor, depth_range: tuple[float, float],
@@ -109,8 +123,6 @@ def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor,
     and (S, 4, 4) camera-to-world -> depth (H, W) metres (0 = filtered out), confidence (H, W)
     in [0, 1] (NCC of the chosen plane, 0 where filtered).
     """
-    h, w = ref.shape
-    s_count = sources.shape[0]
     dt = ref.dtype
     lo = torch.tensor([depth_range[0]], dtype=dt, device=ref.device)
     hi = torch.tensor([depth_range[1]], dtype=dt, device=ref.device)
@@ -120,17 +132,9 @@ def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor,
                                      opts.ncc_window)
     best, c0, index, _ = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
     depth = depth_at_index(index[None], lo, hi, d, opts.spacing)[0]
-    # Multi-view consistency: each source's own aggregated best plane must agree with the choice.
-    per_source = _box(torch.nan_to_num(costs, nan=2.0).flatten(0, 1)[:, None], opts.aggregation_window)
-    per_source_best = per_source.view(s_count, d, h, w).argmin(1).to(dt)
-    # Only sources that see the pixel at the chosen plane can confirm it (others are out of view).
-    seen = torch.isfinite(costs)
-    seeing = seen.gather(1, best[None, None].expand(s_count, 1, h, w))[:, 0]  # (S, H, W)
-    agreeing = (((per_source_best - index).abs() <= opts.agreement_planes) & seeing).sum(0)
-    needed = torch.minimum(seeing.sum(0), torch.full_like(agreeing, opts.min_agreeing_sources))
     score = 1.0 - c0
-    keep = ((score >= opts.min_score) & (texture >= opts.min_texture)
-            & (needed > 0) & (agreeing >= needed) & (best > 0) & (best < d - 1))
+    keep = ((score >= opts.min_score) & (texture >= opts.min_texture) & _sources_agree(costs, best, index, opts)
+            & (best > 0) & (best < d - 1))
     zero = torch.zeros_like(depth)
     return torch.where(keep, depth, zero), torch.where(keep, score.clamp(0, 1), zero)
 
@@ -152,9 +156,11 @@ def refine_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_
     hypotheses = prior.clamp_min(1e-3)[None] * torch.exp(offsets)[:, None, None]  # (D, H, W)
     costs, texture = _matching_costs(ref, sources, K, ref_camera_to_world, src_camera_to_world, hypotheses,
                                      opts.ncc_window)
-    _, c0, index, interior = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
+    best, c0, index, interior = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
     score = 1.0 - c0
     refined = interior & (score >= opts.min_score) & (texture >= opts.min_texture) & (prior > 0)
+    if opts.refine_agreement:
+        refined &= _sources_agree(costs, best, index, opts)
     factor = torch.exp(-log_band + index * (2 * log_band / (steps - 1)))
     return torch.where(refined, prior * factor, prior), torch.where(refined, score.clamp(0, 1), torch.zeros_like(score))
 

@@ -1,12 +1,14 @@
 """`--mode hybrid` against its alternatives on the held-out scans: is a narrow sweep around the network's
 depth the better way to make it precise enough for 5 cm meshes?
 
-    python experiments/guided_sweep.py --weights compact-preview --cache /tmp/guided --threads 2 [--band 0.2 --steps 17]
+    python experiments/guided_sweep.py --weights compact-preview --cache /tmp/guided --threads 2 \
+        [--band 0.2 --steps 17] [--agreement]
 
 Rows per held-out scan (`experiments.select_checkpoint.heldout_scans`, never 7-Scenes): ESTM (memory 2);
 `sweep_merge`, the earlier hybrid (the full plane sweep's depth where it kept a pixel, ESTM's elsewhere);
 and today's hybrid (`depth.hybrid`: each pixel tries depths within a factor 1 +- band of ESTM's, scored by
-the plane sweep's NCC, and takes the best where the match is distinctive) at the given band and steps.
+the plane sweep's NCC, and takes the best where the match is distinctive) at the given band and steps,
+with `--agreement` only where the sources' own best depths agree as well.
 Columns: Abs Rel, within 5 cm, mesh precision / recall / F at 5 cm (unfiltered, against the GT-depth
 fusion), the share of pixels the narrow sweep moved. Results in docs/depth.md, "Hybrid depth".
 """
@@ -68,6 +70,7 @@ def main(argv=None) -> int:
     p.add_argument("--cache", default="/tmp/guided")
     p.add_argument("--band", type=float, default=0.5)
     p.add_argument("--steps", type=int, default=33)
+    p.add_argument("--agreement", action="store_true", help="refine only where the sources agree (refine_agreement)")
     p.add_argument("--scans", default="")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
@@ -88,10 +91,11 @@ def main(argv=None) -> int:
         net, _ = depth_folder(scan, run, "estm", args.weights)
         sweep, _ = depth_folder(scan, run, "planesweep", args.weights)
         sweep_merge(scan, net, sweep, run / "sweep_merge")
-        tag = f"hybrid_b{args.band:g}_s{args.steps}"
+        tag = f"hybrid_b{args.band:g}_s{args.steps}" + ("_agree" if args.agreement else "")
         opts = row_options("hybrid", TableOptions(weights=args.weights))
         opts = dataclasses.replace(opts, planesweep=dataclasses.replace(opts.planesweep, refine_band=args.band,
-                                                                        refine_steps=args.steps))
+                                                                        refine_steps=args.steps,
+                                                                        refine_agreement=args.agreement))
         summary = estimate_depth(scan, run / tag, opts, resume=True)
         rows = {}
         for row in (net.name, "sweep_merge", tag):
@@ -102,7 +106,7 @@ def main(argv=None) -> int:
                   f"P {m['prec']:.3f} R {m['recall']:.3f} F {m['F']:.3f} refined {m['refined']:.1%}", flush=True)
         rows[tag]["seconds_per_frame"] = summary["seconds_per_frame"]
         results[name] = rows
-    (cache / f"summary_{args.band:g}_{args.steps}.json").write_text(json.dumps(results, indent=1))
+    (cache / f"summary_{args.band:g}_{args.steps}{'_agree' if args.agreement else ''}.json").write_text(json.dumps(results, indent=1))
     return 0
 
 

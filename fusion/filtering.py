@@ -44,7 +44,8 @@ from .tsdf import DepthMap, DepthSource, TSDFConfig, depth_source
 CHECKS = ("consistency", "edges", "photometric")
 NETWORK_CHECKS = ("consistency", "edges")  # what `auto` runs on a network's (or a user's) depth
 # Depth modes `auto` leaves to the range test: the plane sweep's pixels already agreed with two sources, and
-# the hybrid's meshes scored higher unfiltered on the held-out scans (docs/evaluation.md).
+# the hybrid's meshes (mostly refined or network pixels) scored higher unfiltered on the held-out scans
+# (docs/evaluation.md).
 RANGE_ONLY_MODES = ("planesweep", "hybrid")
 
 

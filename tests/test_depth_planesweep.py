@@ -63,6 +63,26 @@ def test_refine_depth_pulls_a_wrong_prior_onto_the_surface_and_keeps_it_where_bl
     assert (score > 0).float().mean() < 0.1
 
 
+def test_refine_agreement_keeps_only_pixels_the_sources_confirm():
+    from depth.planesweep import refine_depth
+
+    scan = plane_scan(3, 96, 80, step=0.08)
+    gray, poses, K = _inputs(scan)
+    prior = torch.from_numpy(scan.depth(1)) * 1.2
+    opts = PlaneSweepOptions(refine_agreement=True)
+    _, plain = refine_depth(gray[1], gray[[0, 2]], K, poses[1], poses[[0, 2]], prior)
+    _, agreed = refine_depth(gray[1], gray[[0, 2]], K, poses[1], poses[[0, 2]], prior, opts)
+    assert (agreed > 0).float().mean() > 0.5  # right poses: the sources confirm most of what the match found
+    assert ((agreed > 0) & ~(plain > 0)).sum() == 0  # the check only removes
+    # One source's pose 4 cm off: the mean match still passes, but that source's own best depth disagrees.
+    off = poses[[0, 2]].clone()
+    off[1, 0, 3] += 0.04
+    _, plain_off = refine_depth(gray[1], gray[[0, 2]], K, poses[1], off, prior)
+    _, agreed_off = refine_depth(gray[1], gray[[0, 2]], K, poses[1], off, prior, opts)
+    assert (plain_off > 0).float().mean() > 0.5
+    assert (agreed_off > 0).float().mean() < 0.5 * (plain_off > 0).float().mean()
+
+
 @pytest.mark.data
 def test_planesweep_on_real_iclnuim_frames(iclnuim):
     from depth.metrics import on_gt_grid
