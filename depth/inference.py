@@ -19,7 +19,7 @@ from recon.scan import Scan
 from .checkpoint import DEFAULT_WEIGHTS, weights_digest
 from .estimator import DepthEstimator, TemporalMemory
 from .hybrid import refine_frames
-from .options import DepthOptions, FrameDepth, frame_sources, scan_depth_range
+from .options import DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range
 from .planesweep import run_planesweep
 from .store import DepthStore
 from .views import describe_view
@@ -73,6 +73,7 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     Returns the summary written to depth.json.
     """
     opts.validate()
+    check_scan(scan)  # before anything is written
     if opts.mode != "planesweep":
         opts, estimator = _with_network(opts, estimator)
     store = DepthStore(out_dir, _settings(scan, opts, estimator.config.name if estimator else None))

@@ -113,6 +113,10 @@ def test_bad_input_is_refused(tmp_path, estimator, scan):
         _run(estimator, bad_pose)
     with pytest.raises(ReconError, match="at least 3 frames"):
         _run(estimator, scan.subset([0, 1]))
+    for mode in ("hybrid", "planesweep"):  # refused before the stage writes anything
+        with pytest.raises(ReconError, match="at least 3 frames"):
+            estimate_depth(scan.subset([0, 1]), tmp_path / mode, DepthOptions(mode=mode))
+        assert not (tmp_path / mode).exists()
     static = dataclasses.replace(scan, frames=[dataclasses.replace(f, camera_to_world=np.eye(4))
                                                for f in scan.frames])
     with pytest.raises(ReconError, match="usable source"):
