@@ -39,6 +39,7 @@ class PlaneSweepOptions:
     width: int = 320  # working width (height follows the aspect ratio)
     refine_band: float = 0.5  # `hybrid`: the sweep around the network's depth spans depth x (1 +- band)
     refine_steps: int = 33  # `hybrid`: depths tried per pixel in that band
+    refine_min_score: float = 0.3  # `hybrid`: NCC a refined pixel's match needs (the band already rules out far matches)
     refine_agreement: bool = False  # `hybrid`: also ask the sources to agree (min_agreeing_sources, agreement_planes steps)
 
 

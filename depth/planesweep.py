@@ -145,7 +145,8 @@ def refine_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_
                  opts: PlaneSweepOptions = PlaneSweepOptions()) -> tuple[torch.Tensor, torch.Tensor]:
     """A narrow sweep around a prior depth map: each pixel tries `opts.refine_steps` depths within a factor
     1 +- `opts.refine_band` of its prior (log-spaced), scored like the plane sweep, and takes the best where
-    the match is distinctive (score, texture, a minimum inside the band); elsewhere the prior stays.
+    the match is distinctive (NCC >= `opts.refine_min_score`, texture, a minimum inside the band); elsewhere
+    the prior stays.
 
     ref (H, W), sources (S, H, W) grey; K (3, 3); poses (4, 4), (S, 4, 4); prior (H, W) metres (0 = none)
     -> depth (H, W), score (H, W): the match's NCC where refined, 0 where the prior stayed.
@@ -158,7 +159,7 @@ def refine_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_
                                      opts.ncc_window)
     best, c0, index, interior = _best_hypothesis(_aggregated_cost(costs, opts.aggregation_window))
     score = 1.0 - c0
-    refined = interior & (score >= opts.min_score) & (texture >= opts.min_texture) & (prior > 0)
+    refined = interior & (score >= opts.refine_min_score) & (texture >= opts.min_texture) & (prior > 0)
     if opts.refine_agreement:
         refined &= _sources_agree(costs, best, index, opts)
     factor = torch.exp(-log_band + index * (2 * log_band / (steps - 1)))
