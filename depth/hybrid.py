@@ -12,7 +12,6 @@ peak plane probability elsewhere.
 """
 from __future__ import annotations
 
-import collections
 from typing import Iterator
 
 import torch
@@ -20,27 +19,18 @@ import torch
 from recon.scan import Scan
 
 from .options import FrameDepth, PlaneSweepOptions
-from .planesweep import refine_depth, to_gray
-from .views import image_tensor
+from .planesweep import grey_frames, refine_depth
 
 
 def refine_frames(scan: Scan, network: Iterator[FrameDepth], opts: PlaneSweepOptions) -> Iterator[FrameDepth]:
     """Each network frame refined against its own sources, on the network map's grid, as they come."""
-    work: Scan | None = None
-    cache: collections.OrderedDict[int, torch.Tensor] = collections.OrderedDict()
-
-    def gray(i: int) -> torch.Tensor:
-        if i not in cache:
-            cache[i] = to_gray(image_tensor(work, i))
-            if len(cache) > 12:
-                cache.popitem(last=False)
-        return cache[i]
-
+    work, gray = None, None
     poses = torch.from_numpy(scan.camera_to_world).float()
     for frame in network:
         h, w = frame.depth.shape
         if work is None:
             work = scan if scan.intrinsics.size == (w, h) else scan.resized(w, h)
+            gray = grey_frames(work)
         K = torch.from_numpy(work.intrinsics.K).float()
         prior = torch.from_numpy(frame.depth)
         depth, score = refine_depth(gray(frame.index), torch.stack([gray(j) for j in frame.sources]), K,

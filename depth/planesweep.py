@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import collections
 import math
-from typing import Iterator
+from typing import Callable, Iterator
 
 import torch
 import torch.nn.functional as F
@@ -113,6 +113,20 @@ def _sources_agree(costs: torch.Tensor, best: torch.Tensor, index: torch.Tensor,
     return (needed > 0) & (agreeing >= needed)
 
 
+def grey_frames(scan: Scan, device: torch.device | str = "cpu", keep: int = 12) -> Callable[[int], torch.Tensor]:
+    """Frame index -> its (H, W) grey image in [0, 1] on `device`, the last `keep` kept (a frame serves as
+    reference once and as a source of its neighbours)."""
+    cache: collections.OrderedDict[int, torch.Tensor] = collections.OrderedDict()
+
+    def grey(i: int) -> torch.Tensor:
+        if i not in cache:
+            cache[i] = to_gray(image_tensor(scan, i).to(device))
+            if len(cache) > keep:
+                cache.popitem(last=False)
+        return cache[i]
+    return grey
+
+
 @torch.no_grad()
 def plane_sweep_depth(ref: torch.Tensor, sources: torch.Tensor, K: torch.Tensor, ref_camera_to_world: torch.Tensor,
                       src_camera_to_world: torch.Tensor, depth_range: tuple[float, float],
@@ -180,14 +194,7 @@ def run_planesweep(scan: Scan, opts: DepthOptions = DepthOptions(),
     device = resolve_device(opts.device)
     K = torch.from_numpy(work.intrinsics.K).float().to(device)
     poses = torch.from_numpy(scan.camera_to_world).float().to(device)
-    cache: collections.OrderedDict[int, torch.Tensor] = collections.OrderedDict()
-
-    def gray(i: int) -> torch.Tensor:
-        if i not in cache:
-            cache[i] = to_gray(image_tensor(work, i).to(device))
-            if len(cache) > 12:
-                cache.popitem(last=False)
-        return cache[i]
+    gray = grey_frames(work, device)
 
     for i, srcs in sources.items():
         if i in skip:
