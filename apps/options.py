@@ -129,6 +129,9 @@ def add_depth(parser, with_device: bool = False) -> None:
                    help="network arithmetic; bf16 autocast is faster on GPUs and bf16-capable CPUs (default %(default)s)")
     g.add_argument("--compile", action="store_true",
                    help="torch.compile the network: about a minute of compiling, then faster frames (GPU above all)")
+    g.add_argument("--mirror-pass", action="store_true",
+                   help="also run the left-right mirrored video and keep, per pixel, the more confident depth: "
+                        "better depth and meshes for twice the network time (docs/depth.md)")
     if with_device:
         add_device(g)
 
@@ -207,7 +210,8 @@ def depth_options(args, mode: str):
                         depth_range=tuple(args.depth_range) if args.depth_range else None,
                         sources=SourceConfig(window=args.window, source_baseline=args.baseline),
                         device=args.device, config=args.config, precision=args.precision, fit=args.fit,
-                        compile=args.compile, full_resolution=args.full_res_depth).validate()
+                        compile=args.compile, mirror_pass=args.mirror_pass,
+                        full_resolution=args.full_res_depth).validate()
 
 
 def tsdf_config(args):

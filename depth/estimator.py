@@ -9,6 +9,9 @@ scan's size; with `crop`, pixels outside the window get depth 0 (invalid) and co
                training: every frame of the group attends to the others.
   estm         frames in order; the EST transformer reads a memory of the last N
                frames' key/value volumes (`TemporalMemory`), the oldest dropped first.
+
+With `mirror_pass` (estm, independent) a second pass runs over the left-right mirrored video, and each
+pixel keeps the more confident of the two depths.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from recon.errors import ReconError
 from recon.scan import Scan
@@ -58,17 +62,36 @@ class TemporalMemory:
         return len(self._entries)
 
 
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
+
+
+def mirror_intrinsics(K: np.ndarray, width: int) -> np.ndarray:
+    """K of the left-right mirrored image (pixel centres at integers): cx -> width - 1 - cx. (3, 3) -> (3, 3)"""
+    out = np.array(K, dtype=np.float64)
+    out[0, 2] = width - 1 - out[0, 2]
+    return out
+
+
+def mirror_pose(camera_to_world: np.ndarray) -> np.ndarray:
+    """The camera-to-world pose in the mirrored world (x -> -x in world and camera alike), so that the
+    mirrored images, mirrored K and these poses form a consistent scan. (..., 4, 4) -> (..., 4, 4)"""
+    return MIRROR @ camera_to_world @ MIRROR
+
+
 class _Pass:
     """One pass of the network over a scan: the fitted view, cached per-frame features, the calls."""
 
-    def __init__(self, estimator: "DepthEstimator", scan: Scan, opts: DepthOptions, capacity: int = 12):
+    def __init__(self, estimator: "DepthEstimator", scan: Scan, opts: DepthOptions, capacity: int = 12,
+                 mirrored: bool = False):
         cfg, device = estimator.config, estimator.device
-        self.scan, self.device = scan, device
+        self.scan, self.device, self.mirrored = scan, device, mirrored
         self.sources = frame_sources(scan, opts.sources)
         self.net_scan = network_view(scan, cfg.image_width, cfg.image_height, opts.fit)
         log.info("%s", view_message(describe_view(scan.intrinsics.size, cfg.image_width, cfg.image_height, opts.fit)))
         self.output_size = stored_size(scan.intrinsics.size, (cfg.image_width, cfg.image_height), opts.full_resolution)
-        self.K = torch.from_numpy(self.net_scan.intrinsics.K).float()[None].to(device)
+        intr = self.net_scan.intrinsics
+        K = mirror_intrinsics(intr.K, intr.width) if mirrored else intr.K
+        self.K = torch.from_numpy(K).float()[None].to(device)
         self.depth_range = torch.tensor([scan_depth_range(scan, opts.depth_range)], device=device)
         self.features, self.prepare_call, self.finish_call = estimator.network_calls(opts.compile)
         self.normalise = estimator.model.normalise
@@ -86,13 +109,16 @@ class _Pass:
             self._cache.move_to_end(i)
             return self._cache[i]
         image = self.normalise(image_tensor(self.net_scan, i)[None].to(self.device))
+        if self.mirrored:
+            image = image.flip(-1)
         self._cache[i] = item = (image, self.features(image))
         if len(self._cache) > self.capacity:
             self._cache.popitem(last=False)
         return item
 
     def pose(self, idx) -> torch.Tensor:
-        return torch.from_numpy(self.scan.camera_to_world[idx]).float().to(self.device)
+        pose = self.scan.camera_to_world[idx]
+        return torch.from_numpy(mirror_pose(pose) if self.mirrored else pose).float().to(self.device)
 
     def prepare(self, i: int) -> TargetState:
         with self.precision():
@@ -105,14 +131,31 @@ class _Pass:
         with self.precision():
             return self.finish_call(state, memories)
 
-    def result(self, i: int, out: TargetOutput) -> FrameDepth:
+    def maps(self, out: TargetOutput) -> tuple[torch.Tensor, torch.Tensor]:
+        """(final depth, confidence) on the network grid, (1, 1, h, w) each, mirrored back if need be."""
+        depth, confidence = out.depths[3].float(), out.confidence.float()
+        return (depth.flip(-1), confidence.flip(-1)) if self.mirrored else (depth, confidence)
+
+    def result(self, i: int, depth: torch.Tensor, confidence: torch.Tensor) -> FrameDepth:
         view = (self.net_scan, self.output_size)
-        d = to_scan_pixels(out.depths[3], *view)[0, 0].cpu().numpy()
-        conf = to_scan_pixels(out.confidence, *view)[0, 0].cpu().numpy()
+        d = to_scan_pixels(depth, *view)[0, 0].cpu().numpy()
+        conf = to_scan_pixels(confidence, *view)[0, 0].cpu().numpy()
         if not np.all(np.isfinite(d)):
             raise ReconError(f"frame {self.scan.frames[i].name}: the network produced non-finite depth")
         return FrameDepth(i, self.scan.frames[i].name, d.astype(np.float32), conf.astype(np.float32),
                           list(self.sources[i]))
+
+
+def more_confident(maps: list[tuple[torch.Tensor, torch.Tensor]]) -> tuple[torch.Tensor, torch.Tensor]:
+    """One (depth, confidence) from several passes over the same frame: per pixel, the pass whose
+    confidence is highest. (Their geometric mean measured better depth but blurrier meshes: docs/depth.md.)
+    Each pass: depth (1, 1, H, W), confidence (1, 1, h, w) on a grid as fine or coarser."""
+    if len(maps) == 1:
+        return maps[0]
+    depths, confidences = torch.stack([m[0] for m in maps]), torch.stack([m[1] for m in maps])
+    best = confidences.argmax(0, keepdim=True)
+    best_fine = F.interpolate(best[0].float(), size=depths.shape[-2:], mode="nearest").long()[None]
+    return depths.gather(0, best_fine)[0], confidences.gather(0, best)[0]
 
 
 def _copied(value):
@@ -191,16 +234,26 @@ class DepthEstimator:
         if opts.mode == "joint":
             yield from self._joint(run, opts.joint_group)
             return
-        if memory is None:
-            memory = TemporalMemory(self.config.memory_size if opts.memory_size is None else opts.memory_size)
+        size = self.config.memory_size if opts.memory_size is None else opts.memory_size
+        passes = [(run, memory if memory is not None else TemporalMemory(size))]
+        if opts.mirror_pass:
+            passes.append((_Pass(self, scan, opts, mirrored=True), TemporalMemory(size)))
         for i in run.sources:
             if i in skip:
+                if opts.mode == "estm" and opts.mirror_pass:  # a resume: only the first pass's memory was stored
+                    self._step(*passes[1], i, opts.mode)
                 continue
-            out = run.finish(run.prepare(i), memory.entries if opts.mode == "estm" else [])
-            if opts.mode == "estm":
-                out.memory.name = scan.frames[i].name
-                memory.add(out.memory)
-            yield run.result(i, out)
+            maps = [pass_.maps(self._step(pass_, pass_memory, i, opts.mode)) for pass_, pass_memory in passes]
+            yield run.result(i, *more_confident(maps))
+
+    @staticmethod
+    def _step(run: _Pass, memory: TemporalMemory, i: int, mode: str) -> TargetOutput:
+        """Frame i through the network; in estm mode it reads `memory` and is then added to it."""
+        out = run.finish(run.prepare(i), memory.entries if mode == "estm" else [])
+        if mode == "estm":
+            out.memory.name = run.scan.frames[i].name
+            memory.add(out.memory)
+        return out
 
     @staticmethod
     def _joint(run: _Pass, group_size: int) -> Iterator[FrameDepth]:
@@ -212,6 +265,6 @@ class DepthEstimator:
             for k, (i, state) in enumerate(zip(group, states)):
                 out = run.finish(state, [e for j, e in enumerate(entries) if j != k])
                 entries[k] = out.memory
-                yield run.result(i, out)
+                yield run.result(i, *run.maps(out))
 
 

@@ -69,6 +69,7 @@ class DepthOptions:
     precision: str = "fp32"  # "bf16": autocast the network to bfloat16 (CUDA, and CPUs with bf16 units)
     fit: str = "stretch"  # "stretch" the frame to the network size, or "crop" it (aspect kept, borders lost)
     compile: bool = False  # torch.compile the network (a one-off compile of about a minute, then faster frames)
+    mirror_pass: bool = False  # also run the left-right mirrored video; each pixel keeps the more confident depth (2x time)
     full_resolution: bool = False  # store maps at the scan's resolution instead of the working one (`stored_size`)
     planesweep: PlaneSweepOptions = field(default_factory=PlaneSweepOptions)
 
@@ -86,6 +87,9 @@ class DepthOptions:
         if not (0 < self.planesweep.refine_band < 10 and self.planesweep.refine_steps >= 3):
             raise ReconError("hybrid refinement: refine_band must be in (0, 10) and refine_steps >= 3, got "
                              f"{self.planesweep.refine_band}, {self.planesweep.refine_steps}")
+        if self.mirror_pass and self.mode not in ("estm", "independent", "hybrid"):
+            raise ReconError(f"--mirror-pass needs a network mode that runs frame by frame (estm, independent, "
+                             f"hybrid), not {self.mode}")
         self.sources.validate()
         return self
 

@@ -71,8 +71,10 @@ def row_options(row: str, opts: TableOptions):
         return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):
         return DepthOptions(mode=row, weights=opts.weights, **common)
-    if row == "hybrid":
-        return DepthOptions(mode="hybrid", weights=opts.weights, **common)
+    if row in ("hybrid", "hybrid_mirror"):
+        return DepthOptions(mode="hybrid", weights=opts.weights, mirror_pass=row == "hybrid_mirror", **common)
+    if row == "estm_mirror":
+        return DepthOptions(mode="estm", weights=opts.weights, mirror_pass=True, **common)
     if row.startswith("estm_m"):
         return DepthOptions(mode="estm", weights=opts.weights, memory_size=int(row[len("estm_m"):]), **common)
     if row == "estm_concat":
@@ -81,9 +83,11 @@ def row_options(row: str, opts: TableOptions):
 
 
 def label(row: str) -> str:
-    if row.startswith("estm_m"):
+    named = {"estm_concat": "estm, concat fusion (memory 2)", "estm_mirror": "estm (memory 2), mirrored pass",
+             "hybrid_mirror": "hybrid, mirrored pass"}
+    if row not in named and row.startswith("estm_m"):
         return f"estm (memory {row[len('estm_m'):]})"
-    return {"estm_concat": "estm, concat fusion (memory 2)"}.get(row, row)
+    return named.get(row, row)
 
 
 def depth_table(scan: Scan, out_dir: str | Path, opts: TableOptions = TableOptions(),

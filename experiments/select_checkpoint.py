@@ -54,6 +54,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/select")
     p.add_argument("--baselines", action="store_true", help="also run planesweep and independent (first checkpoint)")
     p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (ESTM refined by a narrow sweep)")
+    p.add_argument("--mirror", action="store_true", help="also run ESTM with the mirrored pass (mirror_pass)")
     p.add_argument("--threads", type=int, default=None)
     args = p.parse_args(argv)
 
@@ -69,7 +70,8 @@ def main(argv=None) -> int:
     scans = heldout_scans(out / "scans")
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    jobs = [(Path(c).stem, c, ("estm_m2", "hybrid") if args.hybrid else ("estm_m2",)) for c in args.checkpoints]
+    rows = ("estm_m2",) + (("hybrid",) if args.hybrid else ()) + (("estm_mirror",) + (("hybrid_mirror",) if args.hybrid else ()) if args.mirror else ())
+    jobs = [(Path(c).stem, c, rows) for c in args.checkpoints]
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))

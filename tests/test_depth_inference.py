@@ -8,7 +8,7 @@ import torch
 
 from depth.checkpoint import save_checkpoint
 from depth.config import TINY
-from depth.estimator import DepthEstimator, TemporalMemory
+from depth.estimator import DepthEstimator, TemporalMemory, _Pass, mirror_intrinsics, mirror_pose
 from depth.inference import estimate_depth
 from depth.model import ESTNet
 from depth.options import DepthOptions
@@ -16,6 +16,7 @@ from depth.views import network_view, to_scan_pixels
 from recon.keyframes import KeyframeConfig, SourceConfig, pose_distance, select_keyframes, select_sources
 from recon.plane_scene import lateral_path, plane_scan
 from recon.errors import ReconError
+from recon.geometry import invert_pose, project, transform_points
 from recon.io import load_confidence_map, load_depth_map
 
 
@@ -191,6 +192,43 @@ def test_bf16_precision_stays_close_to_fp32(estimator, scan):
         _run(estimator, scan, precision="fp8")
 
 
+def test_the_mirrored_camera_sees_the_mirrored_image():
+    K = np.array([[300.0, 0, 140.3], [0, 310.0, 101.7], [0, 0, 1]])  # principal point off centre
+    width = 320
+    camera_to_world = lateral_path(3, step=0.2, yaw_per_frame=0.3)[2]
+    points = np.random.default_rng(0).uniform([-1, -1, 2], [1, 1, 4], (20, 3))
+    u, v = project(transform_points(invert_pose(camera_to_world), points), K)[0].T
+    mirrored = mirror_pose(camera_to_world)
+    mu, mv = project(transform_points(invert_pose(mirrored), points * [-1, 1, 1]), mirror_intrinsics(K, width))[0].T
+    assert np.allclose(mu, width - 1 - u) and np.allclose(mv, v)
+    assert np.isclose(np.linalg.det(mirrored[:3, :3]), 1.0)  # still a rotation
+
+
+def test_mirror_pass_keeps_the_more_confident_of_two_accurate_passes():
+    estimator = DepthEstimator.from_weights("compact", "cpu")
+    scan = plane_scan(4, 160, 128, step=0.15)
+    opts = DepthOptions(mode="estm", depth_range=(1.0, 5.0))
+    plain = list(estimator.run(scan, opts))
+    both = list(estimator.run(scan, dataclasses.replace(opts, mirror_pass=True)))
+    mirrored = _Pass(estimator, scan, opts, mirrored=True)
+    memory = TemporalMemory(2)
+    with torch.no_grad():
+        alone = [mirrored.result(i, *mirrored.maps(estimator._step(mirrored, memory, i, "estm")))
+                 for i in mirrored.sources]
+    for p, b, m, i in zip(plain, both, alone, mirrored.sources):
+        gt = scan.depth(i)
+        gt = cv2.resize(gt, p.depth.shape[::-1], interpolation=cv2.INTER_NEAREST)
+        err = {k: float(np.mean(np.abs(r.depth - gt) / gt)) for k, r in (("plain", p), ("both", b), ("mirrored", m))}
+        assert err["mirrored"] < 1.5 * err["plain"] + 0.02, err  # the mirrored geometry is right
+        assert np.all(b.confidence >= np.maximum(p.confidence, m.confidence) - 1e-3)
+        from_mirror = b.confidence > p.confidence + 1e-3
+        assert 0.02 < from_mirror.mean() < 0.98  # each pass wins somewhere
+        same = np.isclose(b.depth, p.depth, atol=1e-3)  # where the plain pass won (but at the seams: resampled)
+        assert same[~from_mirror].mean() > 0.8 and same[from_mirror].mean() < 0.5
+    with pytest.raises(ReconError, match="mirror-pass"):
+        DepthOptions(mode="joint", mirror_pass=True).validate()
+
+
 def test_crop_fit_keeps_square_pixels_and_maps_back_to_the_window():
     wide = plane_scan(3, 192, 96)  # 2:1 frames into a 5:4 network input
     stretched = network_view(wide, 80, 64, "stretch").intrinsics
@@ -296,3 +334,26 @@ def test_hybrid_mode_is_estm_refined_where_the_images_match_and_resumes(tmp_path
     assert computed == [3, 4, 5]
     for name in scan.names:
         assert np.allclose(load_depth_map(resumed, name), load_depth_map(runs["hybrid"], name), atol=2e-3)
+
+
+def test_mirror_pass_resumes_with_both_memories(tmp_path, scan):
+    """A resumed ESTM run stores only the first pass's memory; the mirrored pass rebuilds its own, so the
+    maps match an uninterrupted run's."""
+    torch.manual_seed(0)
+    weights = str(save_checkpoint(tmp_path / "tiny.pt", ESTNet(TINY), TINY, {"note": "random"}))
+    opts = DepthOptions(mode="estm", weights=weights, depth_range=(1.0, 5.0), mirror_pass=True)
+    whole = estimate_depth(scan, tmp_path / "whole", opts)
+    assert whole["mirror_pass"] is True
+
+    def stop_after_three(i, n):
+        if i == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        estimate_depth(scan, tmp_path / "resumed", opts, progress=stop_after_three)
+    computed = []
+    estimate_depth(scan, tmp_path / "resumed", opts, resume=True, progress=lambda i, n: computed.append(i))
+    assert computed == [4, 5]
+    for name in scan.names:
+        assert np.allclose(load_depth_map(tmp_path / "resumed", name), load_depth_map(tmp_path / "whole", name),
+                           atol=2e-3)
