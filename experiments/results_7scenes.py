@@ -49,7 +49,7 @@ class TableOptions:
     device: str = "cpu"
     mesh: bool = True
     mesh_row: str = "estm_m2"
-    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid")  # rows also fused and scored, when run
+    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror")  # also fused and scored, when run
     voxel_size: float = 0.04
     mesh_depth_max: float = 4.0
     depth_filter: FilterConfig = field(default_factory=FilterConfig)  # what `recon run` fuses with by default
