@@ -6,9 +6,10 @@
 Each checkpoint (a file, or a shipped name such as the incumbent `compact`) runs ESTM (memory 2) on
 every held-out scan through `experiments.results_7scenes.depth_table` (the same code as the 7-Scenes
 table); `--baselines` adds plane sweep and independent rows for the comparison the shipping rules
-need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (ESTM refined by a narrow sweep). Every row's depth is also fused (TSDF, 4 cm voxels) and scored
-against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale" is the
-median prediction / GT ratio (1 = no scale bias). Every row
+need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (ESTM refined by a narrow
+sweep), `--mirror` the same rows with the mirrored pass. Every row's depth is also fused (TSDF, 4 cm voxels)
+and scored against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale"
+is the median prediction / GT ratio (1 = no scale bias). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 and 910002 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256.
@@ -70,7 +71,8 @@ def main(argv=None) -> int:
     scans = heldout_scans(out / "scans")
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    rows = ("estm_m2",) + (("hybrid",) if args.hybrid else ()) + (("estm_mirror",) + (("hybrid_mirror",) if args.hybrid else ()) if args.mirror else ())
+    modes = ("estm_m2",) + (("hybrid",) if args.hybrid else ())
+    rows = modes + (("estm_mirror", "hybrid_mirror")[:len(modes)] if args.mirror else ())
     jobs = [(Path(c).stem, c, rows) for c in args.checkpoints]
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
