@@ -187,6 +187,9 @@ def add_depth_filter(parser) -> None:
     g.add_argument("--filter-weights", action=argparse.BooleanOptionalAction,
                    default=_default(FilterConfig, "weights"),
                    help="weigh each pixel in the TSDF by its consistency score (default %(default)s)")
+    g.add_argument("--near-weight-m", type=float, default=_default(FilterConfig, "near_weight_m"), metavar="M",
+                   help="predicted depth: each pixel weighs M / depth in the TSDF, so nearer views count more "
+                        "(0: every pixel alike; default %(default)s)")
 
 
 def add_evaluation(parser) -> None:
@@ -228,7 +231,8 @@ def filter_config(args):
 
     return FilterConfig(checks=parse_checks(args.filter), views=args.filter_views, min_views=args.filter_min_views,
                         max_rel_diff=args.filter_max_diff, edge_max_angle=args.edge_angle,
-                        max_color_diff=args.photo_max_diff, weights=args.filter_weights).validate()
+                        max_color_diff=args.photo_max_diff, weights=args.filter_weights,
+                        near_weight_m=args.near_weight_m).validate()
 
 
 def cleanup_config(args):

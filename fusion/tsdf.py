@@ -143,7 +143,8 @@ class TSDFIntegrator:
         depth, weight: (H, W) float32; rgb (H, W, 3) uint8; K (3, 3); world_to_camera (4, 4).
         """
         if self.device.get_type() != self._o3c.Device.DeviceType.CPU:
-            raise ReconError("per-pixel fusion weights need the CPU grid (pass --device cpu)")
+            raise ReconError("per-pixel fusion weights (--near-weight-m, --filter-weights) need the CPU grid: "
+                             "pass --near-weight-m 0 to fuse on CUDA, or --device cpu")
         cfg = self.config
         h, w = depth.shape
         hashmap = self.grid.hashmap()

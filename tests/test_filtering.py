@@ -154,7 +154,7 @@ def test_depth_with_its_own_confidence_keeps_it_and_the_score_still_weighs(room)
     """A network's depth keeps its confidence through the filter (what --min-confidence reads); the consistency
     score, served as confidence only to depth without one, still sets the TSDF weights."""
     own = {i: np.random.default_rng(i).random(room.depth(i).shape).astype(np.float32) for i in range(len(room))}
-    config = FilterConfig(weights=True)
+    config = FilterConfig(weights=True, near_weight_m=0.0)
     with_own = DepthFilter(room, lambda i: DepthMap(room.depth(i), own[i]), config, (0.1, 6.0))
     without = DepthFilter(room, lambda i: DepthMap(room.depth(i)), config, (0.1, 6.0))
     for i in (0, 11):
@@ -169,7 +169,7 @@ def test_weights_from_the_consistency_score_reach_the_tsdf(room, tmp_path):
     for i, f in enumerate(room.frames):
         save_depth_map(tmp_path, f.name, room.depth(i))
     config = TSDFConfig(depth_max=6.0)
-    weighted = filtered_depth(room, tmp_path, FilterConfig(weights=True), config)
+    weighted = filtered_depth(room, tmp_path, FilterConfig(weights=True, near_weight_m=0.0), config)
     frame = weighted(0)
     views = FilterConfig().views
     assert frame.weight is not None and np.allclose(frame.weight, (1 + views * frame.confidence) / (1 + views))
@@ -178,7 +178,48 @@ def test_weights_from_the_consistency_score_reach_the_tsdf(room, tmp_path):
     assert frame.weight[kept].mean() > 0.5  # exact depth: confirmed by most views (pixel rounding costs some)
     mesh = fuse_scan(room, filtered_depth(room, tmp_path, FilterConfig(weights=True), config), config)
     assert mesh_metrics(mesh, box_room_mesh(), scan=room, config=MeshEvalConfig(n_points=50_000))["fscore"] > 0.9
-    assert filtered_depth(room, tmp_path, FilterConfig(), config)(0).weight is None
+    assert filtered_depth(room, tmp_path, FilterConfig(near_weight_m=0.0), config)(0).weight is None
+
+
+def test_predicted_depth_weighs_near_over_depth_and_a_scans_own_depth_does_not(room, tmp_path):
+    for i, f in enumerate(room.frames):
+        save_depth_map(tmp_path, f.name, room.depth(i))
+    config = TSDFConfig(depth_max=6.0)
+    frame = filtered_depth(room, tmp_path, FilterConfig(), config)(3)
+    kept = frame.depth_m > 0
+    assert np.allclose(frame.weight[kept], 2.0 / frame.depth_m[kept]) and not frame.weight[~kept].any()
+    both = filtered_depth(room, tmp_path, FilterConfig(weights=True), config)(3)
+    score_only = filtered_depth(room, tmp_path, FilterConfig(weights=True, near_weight_m=0.0), config)(3)
+    assert np.allclose(both.weight, score_only.weight * frame.weight)
+    assert filtered_depth(room, "gt", FilterConfig(), config)(3).weight is None
+    assert filtered_depth(room, "gt", FilterConfig(checks=("edges",)), config)(3).weight is None
+    with pytest.raises(ReconError, match="near-weight-m"):
+        FilterConfig(near_weight_m=-1.0).validate()
+
+
+def test_near_views_move_the_fused_surface_more_than_far_ones():
+    """A wall 1 m in front of one camera and 3 m in front of another, which sees it 8 cm too far: weighed by
+    nearness, the fused wall lies about three times nearer the near camera's reading than the far one's;
+    unweighted, halfway (the TSDF averages the two readings)."""
+    K = Intrinsics(fx=160.0, fy=160.0, cx=63.5, cy=47.5, width=128, height=96)
+    frames = []
+    for name, distance, reading in (("near", 1.0, 1.0), ("far", 3.0, 3.08)):
+        pose = np.eye(4)
+        pose[2, 3] = 1.0 - distance  # both look down +z at the wall z = 1
+        frames.append(Frame(name=name, camera_to_world=pose, image_array=np.full((96, 128, 3), 128, np.uint8),
+                            depth_array=np.full((96, 128), reading, np.float32)))
+    scan = Scan(K, frames, ScanMetadata())
+    config = TSDFConfig(voxel_size=0.02, trunc_voxels=6, depth_max=4.0)  # a 12 cm band holds both readings
+
+    def wall_z(near_weight_m: float) -> float:
+        source = DepthFilter(scan, lambda i: DepthMap(scan.depth(i)), FilterConfig(checks=(), near_weight_m=near_weight_m),
+                             (config.depth_min, config.depth_max))
+        mesh = fuse_scan(scan, source, config, cleanup=None)
+        centre = np.abs(mesh.vertices[:, :2]).max(axis=1) < 0.2
+        return float(np.median(mesh.vertices[centre, 2]))
+
+    assert wall_z(0.0) == pytest.approx(1.04, abs=0.003)
+    assert wall_z(2.0) == pytest.approx(1.0196, abs=0.003)  # weights 2 / 1 and 2 / 3.08
 
 
 def test_config_checks():
