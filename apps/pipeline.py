@@ -402,7 +402,8 @@ class Pipeline:
             mesh = fuse_scan(scan, source, self.config.fusion, cleanup=self.config.cleanup, progress=bar)
         save_mesh(mesh, self.out / "mesh.ply")
         return {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
-                "filter": {"checks": list(source.config.checks), **source.stats.as_dict()}}
+                "filter": {"checks": list(source.config.checks), "near_weight_m": source.config.near_weight_m,
+                           **source.stats.as_dict()}}
 
     def ground_truth_scan(self) -> Scan:
         """The scan that holds this run's ground truth: its own, or for an SfM run without any, the frames of

@@ -294,6 +294,7 @@ def test_run_reports_the_filter(tmp_path):
     report = pipeline.summary()  # what the report stage writes to report.json
     flt = report["filter"]
     assert flt["checks"] == ["consistency", "edges"] and flt["frames"] == report["stages"]["scan"]["keyframes"]
+    assert flt["near_weight_m"] == 2.0  # the network's depth is weighed by nearness
     assert 0 < flt["kept_share"] < 1 and flt["kept_pixels"] < flt["valid_pixels"] and flt["seconds"] > 0
     assert sum(flt["dropped"].values()) == flt["valid_pixels"] - flt["kept_pixels"]
     from apps.report import summary_cards
