@@ -44,17 +44,15 @@ ROWS = {
 def weighted(source, exponent: float | None, reference_m: float = 1.0):
     """`source` (i -> DepthMap) with each valid pixel weighing (reference_m / depth)^exponent; None leaves it
     unweighted."""
+    from fusion.filtering import near_weights
     from fusion.tsdf import DepthMap
 
     if exponent is None:
         return source
 
     def frame(i: int) -> DepthMap:
-        depth = source(i)
-        valid = depth.depth_m > 0
-        weight = np.zeros_like(depth.depth_m, dtype=np.float32)
-        weight[valid] = (reference_m / depth.depth_m[valid]) ** exponent
-        return DepthMap(depth.depth_m, depth.confidence, weight)
+        depth = source(i)  # pixels without depth are never integrated, whatever they weigh
+        return DepthMap(depth.depth_m, depth.confidence, near_weights(depth.depth_m, reference_m) ** exponent)
     return frame
 
 

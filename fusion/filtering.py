@@ -24,7 +24,7 @@ more mesh F-score than one on the score at 80 and 60 % of the pixels on all four
 Predicted depth is also weighed by nearness: each pixel counts `near_weight_m` / depth in the TSDF, so where a
 near and a far view disagree the near one, whose depth errs less (a stereo network's error grows with depth),
 moves the surface more. Chosen on the held-out scans (docs/evaluation.md): it raised the mesh F-score of the
-network's and the hybrid's depth on each of the four. A scan's own depth is never weighed (it is the reference).
+network's, the hybrid's and the plane sweep's depth on each of the four. A scan's own depth is never weighed (it is the reference).
 Vectorised numpy, so it costs a fraction of the depth stage (`recon bench fusion`).
 """
 from __future__ import annotations
