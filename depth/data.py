@@ -34,6 +34,8 @@ class ClipOptions:
     gamma: float = 0.2
     depth_margin: float = 0.1  # range from GT: [min * (1 - m), max * (1 + m)] when metadata has none
     scale_jitter: float = 0.0  # with augment: scene scaled by exp(U(-j, j)) per clip (depth and baselines)
+    reverse_share: float = 0.0  # with augment: this share of clips runs backwards in time (walks filmed forwards
+    #                             would otherwise teach the memory that the camera always advances)
     keep_orientation: bool = True  # portrait scans get a portrait clip (width and height swapped)
 
 
@@ -70,6 +72,9 @@ def make_clip(scan: Scan, start: int, opts: ClipOptions, gen: torch.Generator | 
     """One clip as tensors: images (V, 3, H, W) in [0, 1], K (3, 3) at H x W, camera_to_world
     (V, 4, 4), depth (V, H, W) metres (0 = invalid), depth_range (2,)."""
     idx = [start + k * opts.frame_gap for k in range(opts.clip_length)]
+    if opts.augment and gen is not None and opts.reverse_share > 0 \
+            and torch.rand((), generator=gen).item() < opts.reverse_share:
+        idx.reverse()
     portrait = opts.keep_orientation and (scan.intrinsics.height > scan.intrinsics.width) != (opts.height > opts.width)
     net = scan.resized(opts.height, opts.width) if portrait else scan.resized(opts.width, opts.height)
     images, depths = [], []
@@ -111,6 +116,12 @@ def resize_clip(batch: dict, width: int, height: int) -> dict:
     return {**batch, "images": images, "depth": depth, "K": scale_intrinsics(batch["K"], width / w, height / h)}
 
 
+def _describe_clips(opts: ClipOptions) -> dict:
+    """The clip settings that checkpoint metadata records."""
+    return {"clip_length": opts.clip_length, "frame_gap": opts.frame_gap, "size": [opts.width, opts.height],
+            "scale_jitter": opts.scale_jitter, **({"reverse_share": opts.reverse_share} if opts.reverse_share else {})}
+
+
 def _clip_starts(scan: Scan, opts: ClipOptions) -> range:
     span = (opts.clip_length - 1) * opts.frame_gap
     return range(0, max(len(scan) - span, 0))
@@ -139,8 +150,7 @@ class ClipDataset(Dataset):
     def describe(self) -> dict:
         """What the data is, for checkpoint metadata."""
         return {"scans": [str(s.root or s.metadata.source) for s in self.scans], "clips": len(self),
-                "clip_length": self.opts.clip_length, "frame_gap": self.opts.frame_gap,
-                "size": [self.opts.width, self.opts.height], "scale_jitter": self.opts.scale_jitter}
+                **_describe_clips(self.opts)}
 
 
 class StreamingClips(IterableDataset):
@@ -168,9 +178,7 @@ class StreamingClips(IterableDataset):
                 yield make_clip(scan, start, self.opts, gen)
 
     def describe(self) -> dict:
-        return {"stream": type(self.scans).__name__, **self.about, "clip_length": self.opts.clip_length,
-                "frame_gap": self.opts.frame_gap, "size": [self.opts.width, self.opts.height],
-                "scale_jitter": self.opts.scale_jitter}
+        return {"stream": type(self.scans).__name__, **self.about, **_describe_clips(self.opts)}
 
 
 

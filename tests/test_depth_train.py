@@ -54,6 +54,23 @@ def test_scale_jitter_scales_depth_and_baselines_together():
     assert ((scaled["depth"] == 0) | ((scaled["depth"] >= 1.0) & (scaled["depth"] <= 5.0))).all()
 
 
+def test_reversed_clips_play_the_same_frames_backwards():
+    scan = plane_scan(9, 120, 90, step=0.08)
+    plain = ClipOptions(width=96, height=64, augment=False)
+    forward = ClipDataset([scan], plain)
+    always = ClipDataset([scan], ClipOptions(**{**plain.__dict__, "augment": True, "brightness": 0.0, "contrast": 0.0,
+                                                  "saturation": 0.0, "gamma": 0.0, "reverse_share": 1.0}))
+    for i in range(len(forward)):
+        a, b = forward[i], always[i]
+        assert torch.equal(b["camera_to_world"], a["camera_to_world"].flip(0))
+        assert torch.equal(b["depth"], a["depth"].flip(0))
+        assert torch.allclose(b["images"], a["images"].flip(0), atol=1e-6)
+    half = ClipDataset([plane_scan(40, 96, 64, step=0.08)], ClipOptions(width=96, height=64, reverse_share=0.5))
+    backwards = sum(bool(half[i]["camera_to_world"][0, 0, 3] > half[i]["camera_to_world"][-1, 0, 3])
+                    for i in range(len(half)))
+    assert 0.25 * len(half) < backwards < 0.75 * len(half)  # about half of the clips, not all nor none
+
+
 def _two_plane_scans(shard):
     """Loader worker `shard`'s stream: rooms of its own."""
     return (plane_scan(5, 96, 64, step=0.08, seed=10 * shard + k) for k in range(2))

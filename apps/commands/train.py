@@ -73,6 +73,9 @@ def add_arguments(p) -> None:
     data.add_argument("--scale-jitter", type=float, default=0.0, metavar="J",
                       help="scale each clip's room by exp(U(-J, J)), depth and baselines together, so scale "
                            "must come from the poses (default 0: off)")
+    data.add_argument("--reverse-share", type=float, default=0.0, metavar="P",
+                      help="share of clips played backwards in time (default 0); the synthetic walks look where "
+                           "they go, so without it the ESTM memory only ever sees a camera that advances")
     data.add_argument("--seed", type=int, default=0, help="seed of the model init and the synthetic stream")
     files = p.add_argument_group("checkpoints")
     files.add_argument("--val-every", type=int, default=100, metavar="STEPS", help="(default 100)")
@@ -164,7 +167,8 @@ def _data(args: argparse.Namespace, cfg):
     from recon.errors import ReconError
 
     clip = ClipOptions(frame_gap=args.frame_gap, width=cfg.image_width, height=cfg.image_height,
-                       augment=not args.no_augment, scale_jitter=args.scale_jitter)
+                       augment=not args.no_augment, scale_jitter=args.scale_jitter,
+                       reverse_share=args.reverse_share)
     plain = ClipOptions(**{**clip.__dict__, "augment": False})
 
     def scans(paths):
@@ -174,6 +178,8 @@ def _data(args: argparse.Namespace, cfg):
 
     if args.synthetic == bool(args.scans):
         raise ReconError("recon train: give training scans or --synthetic (one of the two)")
+    if not 0 <= args.reverse_share <= 1:
+        raise ReconError(f"--reverse-share is a share of clips, in [0, 1]; got {args.reverse_share}")
     if not args.synthetic:
         val = ClipDataset(scans(args.val), plain) if args.val else None
         return ClipDataset(scans(args.scans), clip, seed=args.seed), val
