@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     from experiments.select_checkpoint import heldout_scans
 
     results = {}
-    for name, scan in heldout_scans(Path("runs/select/scans")).items():
+    for name, scan in heldout_scans(args.forward.parent / "scans").items():  # where select_checkpoint keeps them
         folder = args.out / name
         forward = folder / "estm_m2"
         if not forward.is_dir():
