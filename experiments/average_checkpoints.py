@@ -1,11 +1,13 @@
-"""Average the weights of several checkpoints of one run into one checkpoint file, to score it like any other.
+"""Average the weights of several checkpoints of one network into one checkpoint file, to score it like any other.
 
     python experiments/average_checkpoints.py runs/lite_v13/step_005200.pt runs/lite_v13/step_005300.pt \
         runs/lite_v13/step_005336.pt --out runs/lite_v13/mean_005200_005336.pt
 
 Late checkpoints of a CPU run at batch size 1 differ in held-out error from one to the next; their mean
 is one network as fast as each. Measured on `runs/lite_v13` (docs/model_card.md): no gain over the last
-checkpoint once the learning rate has decayed.
+checkpoint once the learning rate has decayed. Sibling fine-tunes of one parent (different seeds and starts,
+each off the held-out optimum in its own direction) average better: the mean of `runs/compact_k20` to `k23`
+beat each of them and shipped as `compact-preview` on 2026-12-05 (docs/model_card.md).
 """
 from __future__ import annotations
 
