@@ -11,8 +11,10 @@ sweep), `--mirror` the same rows with the mirrored pass. Every row's depth is al
 and scored against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale"
 is the median prediction / GT ratio (1 = no scale bias). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
-Held-out synthetic rooms: seeds 910001 and 910002 (training rooms come from other seeds,
-validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256.
+Held-out synthetic rooms: seeds 910001 to 910004 (training rooms come from other seeds,
+validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256;
+910003 and 910004 since 2026-12-05, to dilute the demo room's swings: rows scored before lack them,
+and experiments/ship_weights.py compares rows on the scans both have.
 The demo room (seed 7, clean): every 4th frame, 320x240. ICL-NUIM living room 1: every 5th frame at
 320x256. Writes summary.json and prints a table.
 """
@@ -26,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-HELDOUT_SEEDS = (910001, 910002)
+HELDOUT_SEEDS = (910001, 910002, 910003, 910004)
 ICL = ROOT.parent / "shared" / "data" / "iclnuim-livingroom1"
 
 
