@@ -2,6 +2,9 @@
 
 E is the paper's L1 in metres (`l1`), or the L1 of log depth (`log_l1`): the relative error,
 which weighs a near wall as much as a far one, as Abs Rel and the depth-range planes do.
+An optional gradient term (`grad_weight`) adds the multi-scale gradient of the log-depth residual
+of the full-resolution output: zero for a map that is right up to scale, large where the
+prediction smooths over an edge the ground truth has, so it rewards depth that follows the image.
 """
 from __future__ import annotations
 
@@ -25,14 +28,34 @@ def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str) -> torch.T
     raise ValueError(f"unknown loss {kind!r} (expected one of {LOSSES})")
 
 
+def log_gradient_error(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, scales: int = 4
+                       ) -> torch.Tensor:
+    """Mean |d/dx R| + |d/dy R| of R = log pred - log target over `scales` strides (1, 2, 4, ...).
+
+    pred, target: (B, 1, H, W) metres; valid: (B, 1, H, W) bool. Only differences between two
+    valid pixels count. Scale-invariant: pred = c * target gives 0.
+    """
+    residual = torch.log(pred.clamp_min(1e-3)) - torch.log(target.clamp_min(1e-3))
+    total = pred.new_zeros(())
+    for k in range(scales):
+        r, v = residual[..., ::2 ** k, ::2 ** k], valid[..., ::2 ** k, ::2 ** k]
+        dx, vx = (r[..., :, 1:] - r[..., :, :-1]).abs(), v[..., :, 1:] & v[..., :, :-1]
+        dy, vy = (r[..., 1:, :] - r[..., :-1, :]).abs(), v[..., 1:, :] & v[..., :-1, :]
+        count = vx.sum() + vy.sum()
+        if count > 0:
+            total = total + ((dx * vx).sum() + (dy * vy).sum()) / count
+    return total / scales
+
+
 def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: str = "l1",
-                     decay: float = STAGE_DECAY) -> tuple[torch.Tensor, list[float]]:
+                     decay: float = STAGE_DECAY, grad_weight: float = 0.0) -> tuple[torch.Tensor, list[float]]:
     """Loss over targets and stages.
 
     depths[t][s]: (B, 1, h_s, w_s) predicted depth of target t at stage s; gt: (B, T, H, W)
     metres, 0 = invalid. Lower-resolution predictions are upsampled (bilinear) to the
     GT resolution, so every stage is judged on the same pixels. Returns the loss and the
-    per-stage error averaged over targets (for logging).
+    per-stage error averaged over targets (for logging). `grad_weight` > 0 adds that much of
+    `log_gradient_error` of the last (full-resolution) stage per target.
     """
     weights = stage_weights(len(depths[0]), decay)
     total = gt.new_zeros(())
@@ -50,5 +73,7 @@ def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: s
             err = (_pixel_error(pred.float(), target, kind) * valid).sum() / count
             total = total + w * err
             per_stage[s] += float(err.detach()) / len(depths)
+        if grad_weight > 0:
+            total = total + grad_weight * log_gradient_error(pred.float(), target, valid)
     return total / len(depths), per_stage
 

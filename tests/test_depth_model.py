@@ -4,7 +4,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from depth.config import COMPACT, PAPER, TINY, ESTConfig, get_config
-from depth.loss import multi_stage_loss, stage_weights
+from depth.loss import log_gradient_error, multi_stage_loss, stage_weights
 from depth.model import ESTNet
 from depth.model.context import ContextNet
 from depth.model.layers import Conv3d
@@ -137,6 +137,22 @@ def test_loss_weights_and_invalid_pixels():
     loss, per_stage = multi_stage_loss([[pred_low, pred_low, pred_full, pred_full]], gt)
     assert per_stage == pytest.approx([0.5, 0.5, 1.0, 1.0])
     assert float(loss) == pytest.approx(0.512 * 0.5 + 0.64 * 0.5 + 0.8 + 1.0)
+
+
+def test_gradient_term_rewards_edges_not_scale():
+    gt = torch.ones(1, 1, 16, 16)
+    gt[..., 8:] = 3.0  # a step edge: a near wall in front of a far one
+    valid = torch.ones_like(gt, dtype=torch.bool)
+    assert float(log_gradient_error(2.5 * gt, gt, valid)) == pytest.approx(0.0, abs=1e-6)
+    ramp = torch.linspace(1.0, 3.0, 16).expand(1, 1, 16, 16)  # the same range, blurred over the image
+    blurred = float(log_gradient_error(ramp, gt, valid))
+    assert blurred > 0.05
+    hidden = valid.clone()
+    hidden[..., 4:12] = False  # no valid pair across the edge or the ramp's steep part counts
+    assert float(log_gradient_error(ramp, gt, hidden)) < blurred
+    loss, _ = multi_stage_loss([[ramp, ramp]], gt)
+    with_grad, _ = multi_stage_loss([[ramp, ramp]], gt, grad_weight=2.0)
+    assert float(with_grad - loss) == pytest.approx(2.0 * blurred, rel=1e-5)
 
 
 def test_config_round_trip_and_errors():

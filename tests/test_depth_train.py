@@ -118,6 +118,17 @@ def test_tiny_model_overfits_a_clip(tmp_path):
     assert _drop(losses) >= 10.0
 
 
+def test_gradient_weight_enters_the_training_loss(tmp_path):
+    data = ClipDataset([plane_scan(5, 96, 64, step=0.08)], CLIP)
+    first = {}
+    for w in (0.0, 5.0):
+        torch.manual_seed(0)
+        first[w] = train(data, tmp_path / str(w), _quiet(max_steps=1, grad_weight=w), model_config=TINY).losses[0]
+    assert first[5.0] > first[0.0] + 1e-4  # same weights, same clip: only the added term differs
+    with pytest.raises(ReconError, match="gradient weight"):
+        train(data, tmp_path / "x", _quiet(max_steps=1, grad_weight=-1.0), model_config=TINY)
+
+
 def test_resume_continues_exactly(tmp_path):
     data = ClipDataset([plane_scan(5, 96, 64, step=0.08)], CLIP)
     torch.manual_seed(0)

@@ -62,6 +62,9 @@ def add_arguments(p) -> None:
     opt.add_argument("--loss", choices=("l1", "log_l1"), default="l1",
                      help="per-pixel error: l1 in metres (paper; the default: lower held-out Abs Rel than log-L1, "
                           "docs/model_card.md lite_v15) or l1 of log depth")
+    opt.add_argument("--grad-weight", type=float, default=0.0, metavar="W",
+                     help="add W x the multi-scale gradient of the log-depth error of the full-resolution "
+                          "output, which rewards edges where the ground truth has them (default 0: off)")
     opt.add_argument("--batch-size", type=int, default=1)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
@@ -232,6 +235,7 @@ def run(args: argparse.Namespace) -> int:
         batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, schedule=args.schedule,
         lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
+        grad_weight=args.grad_weight,
         low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
         checkpoint_every=args.checkpoint_every, log_every=args.log_every, amp=args.amp, compile=args.compile,
         device=args.device, num_workers=args.workers, seed=args.seed, init=args.init, backbone=args.backbone,
