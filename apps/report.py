@@ -36,6 +36,10 @@ METRICS = {
     "a2": ("δ < 1.25²", "share of pixels with max(d/d*, d*/d) < 1.5625", "share"),
     "a3": ("δ < 1.25³", "share of pixels with max(d/d*, d*/d) < 1.953", "share"),
     "within_5cm": ("within 5 cm", "share of pixels whose depth is within 5 cm (the mesh score's threshold)", "share"),
+    "edge_precision": ("edge precision", "share of predicted occluding edges (a >10 % depth jump between neighbours) "
+                       "within 2 px of a true one", "share"),
+    "edge_recall": ("edge recall", "share of true occluding edges with a predicted one within 2 px", "share"),
+    "edge_f": ("edge F", "harmonic mean of edge precision and recall: 0 for depth that blurs over object edges", "ratio"),
     "coverage": ("coverage", "share of ground-truth pixels that got a prediction", "share"),
     "median_ratio": ("scale", "median of d / d*: 1 = no scale bias, 1.1 = everything 10 % too far", "ratio"),
     "frames": ("frames", "frames scored", "count"),

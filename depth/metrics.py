@@ -8,6 +8,8 @@ free pass) and `coverage` says which share of those pixels had a prediction. `me
 whose depth is neither too near nor too far overall. `within_5cm` is the share of pixels whose
 depth is within the mesh score's 5 cm: δ<1.25 calls a 40 cm error at 2 m right, a fused surface
 does not, so two networks can rank one way on Abs Rel and δ and the other way on the mesh.
+`edge_precision`, `edge_recall` and `edge_f` say whether the depth follows the scene's occluding edges:
+a map that blurs a chair into the wall behind it scores well on Abs Rel and near zero here.
 """
 from __future__ import annotations
 
@@ -17,6 +19,8 @@ from recon.geometry import reproject_depth
 
 DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "within_5cm")
 SURFACE_TOLERANCE = 0.05  # metres: the mesh F-score's threshold, so `within_5cm` reads as the depth the mesh can use
+EDGE_JUMP = 1.1  # a depth ratio above this between 4-neighbours is an occluding edge (a slanted wall: a few %)
+EDGE_TOLERANCE_PX = 2  # an edge found within this many pixels of the true one counts as found
 
 
 def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3, max_depth: float = 10.0
@@ -46,6 +50,56 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3,
         "coverage": float(np.mean(covered)),
         "median_ratio": float(np.median(raw[covered] / gt[covered])) if covered.any() else float("nan"),
     }
+
+
+def depth_edges(depth_m: np.ndarray, valid: np.ndarray, jump: float = EDGE_JUMP) -> np.ndarray:
+    """(H, W) bool: pixels whose depth differs from a valid 4-neighbour's by a ratio above `jump`.
+
+    Both sides of an edge are marked; pixels outside `valid` never are.
+    """
+    log_d = np.log(np.where(valid, np.maximum(depth_m, 1e-6), 1.0))
+    edges = np.zeros(depth_m.shape, dtype=bool)
+    limit = np.log(jump)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        a, b = tuple(a), tuple(b)
+        step = (np.abs(log_d[a] - log_d[b]) > limit) & valid[a] & valid[b]
+        edges[a] |= step
+        edges[b] |= step
+    return edges
+
+
+def edge_counts(pred_m: np.ndarray, gt_m: np.ndarray, valid: np.ndarray, tolerance_px: int = EDGE_TOLERANCE_PX
+                ) -> tuple[int, int, int, int]:
+    """(predicted edge pixels near a true edge, predicted edge pixels, true edge pixels near a predicted
+    edge, true edge pixels) on the pixels valid in both, within `tolerance_px` (Euclidean)."""
+    import cv2
+
+    pred_valid = valid & np.isfinite(pred_m) & (pred_m > 0)
+    true_edges = depth_edges(gt_m, valid)
+    pred_edges = depth_edges(pred_m, pred_valid)
+
+    def near(edges: np.ndarray) -> np.ndarray:
+        if not edges.any():
+            return np.zeros_like(edges)
+        return cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3) <= tolerance_px
+
+    return (int((pred_edges & near(true_edges)).sum()), int(pred_edges.sum()),
+            int((true_edges & near(pred_edges)).sum()), int(true_edges.sum()))
+
+
+def edge_scores(counts: list[tuple[int, int, int, int]]) -> dict[str, float]:
+    """Precision, recall and F-score of occluding edges from `edge_counts` summed over frames (NaN
+    where a share has no pixels)."""
+    hit_p, pred, hit_t, true = (sum(c[i] for c in counts) for i in range(4))
+    precision = hit_p / pred if pred else float("nan")
+    recall = hit_t / true if true else float("nan")
+    f = float("nan")
+    if pred and true:
+        f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return {"edge_precision": precision, "edge_recall": recall, "edge_f": f}
 
 
 def on_gt_grid(pred_m: np.ndarray, gt_m: np.ndarray) -> np.ndarray:
@@ -116,7 +170,7 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
     if align not in ("none", "median"):
         raise ReconError(f"unknown alignment {align!r} (none, median)")
     K = scan.intrinsics.K
-    per_frame, flickers, rows, prev = [], [], [], None
+    per_frame, flickers, edges, rows, prev = [], [], [], [], None
     for i in range(len(scan)):
         gt = scan.depth(i)
         pred = on_gt_grid(load_depth_map(pred_dir, scan.frames[i].name), gt)
@@ -127,6 +181,7 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
         m = depth_metrics(pred, gt, min_depth, max_depth)
         if m is not None:
             per_frame.append(m)
+            edges.append(edge_counts(pred, gt, np.isfinite(gt) & (gt > min_depth) & (gt < max_depth)))
         f = None
         if prev is not None:
             f = flicker(prev[0], pred, K, prev[2], scan.frames[i].camera_to_world, prev[1], gt)
@@ -138,5 +193,6 @@ def evaluate_depth_folder(pred_dir, scan, min_depth: float = 1e-3, max_depth: fl
         if progress:
             progress(i + 1, len(scan))
     out = summarise(per_frame, flickers)
+    out.update(edge_scores(edges))
     out.update({"min_depth": min_depth, "max_depth": max_depth, "align": align, "per_frame": rows})
     return out

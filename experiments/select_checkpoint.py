@@ -9,7 +9,8 @@ table); `--baselines` adds plane sweep and independent rows for the comparison t
 need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (ESTM refined by a narrow
 sweep), `--mirror` the same rows with the mirrored pass. Every row's depth is also fused (TSDF, 4 cm voxels)
 and scored against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale"
-is the median prediction / GT ratio (1 = no scale bias). Every row
+is the median prediction / GT ratio (1 = no scale bias); "edge F" whether the depth has the scene's
+occluding edges (`depth.metrics.edge_counts`; `--rescore-edges` adds it to rows scored before it). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 to 910004 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256;
@@ -51,6 +52,22 @@ def heldout_scans(cache: Path):
     return scans
 
 
+def rescore_edges(summary: dict, scans: dict, out: Path) -> None:
+    """Edge F of rows scored before it existed, from the depth maps their run left under `out`."""
+    from depth.metrics import evaluate_depth_folder
+    from recon.errors import ReconError
+
+    for key, per in summary.items():
+        name, _, row = key.partition(":")
+        for scan_name, scores in per.items():
+            folder = out / name / scan_name / (row or name)
+            if "edge_f" not in scores and scan_name in scans and folder.is_dir():
+                try:
+                    scores["edge_f"] = evaluate_depth_folder(folder, scans[scan_name])["edge_f"]
+                except ReconError as e:  # a folder a later run overwrote with fewer frames
+                    print(f"{key} {scan_name}: no edge F ({e})")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("checkpoints", nargs="*")
@@ -59,6 +76,8 @@ def main(argv=None) -> int:
     p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (ESTM refined by a narrow sweep)")
     p.add_argument("--mirror", action="store_true", help="also run ESTM with the mirrored pass (mirror_pass)")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--rescore-edges", action="store_true",
+                   help="add edge F to every summary row whose depth folders are still under --out, then print")
     args = p.parse_args(argv)
 
     import torch
@@ -79,6 +98,9 @@ def main(argv=None) -> int:
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
+    if args.rescore_edges:
+        rescore_edges(summary, scans, out)
+        summary_path.write_text(json.dumps(summary, indent=2))
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():
             # each checkpoint sweeps its own trained range, as the product uses it; the plane sweep the first's
@@ -87,7 +109,7 @@ def main(argv=None) -> int:
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"
                 summary.setdefault(key, {})[scan_name] = {k: m[k] for k in
-                                                          ("abs_rel", "abs", "rmse", "a1", "within_5cm", "flicker", "coverage", "abs_rel_covered",
+                                                          ("abs_rel", "abs", "rmse", "a1", "within_5cm", "edge_f", "flicker", "coverage", "abs_rel_covered",
                                                            "median_ratio", "seconds_per_frame")}
                 mesh = mesh_scores(scan, out / name / scan_name, TableOptions(mesh_row=row),
                                    log=lambda s: print(f"{name} {scan_name}: {s}"))
@@ -95,16 +117,18 @@ def main(argv=None) -> int:
             summary_path.write_text(json.dumps(summary, indent=2))
     names = list(scans)
     print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / within 5 cm / mesh F / scale" for n in names)
-          + " | mean Abs Rel | mean mesh F |")
-    print("|---|" + "---|" * (len(names) + 2))
+          + " | mean Abs Rel | mean mesh F | mean edge F |")
+    print("|---|" + "---|" * (len(names) + 3))
     nan = float("nan")
     for key, per in summary.items():
         cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('within_5cm', nan):.1%}"
                  f" / {per[n].get('mesh_fscore', nan):.3f} / {per[n].get('median_ratio', nan):.3f}" if n in per else "-"
                  for n in names]
         scored = [n for n in names if n in per]
-        mean = {k: sum(per[n].get(k, nan) for n in scored) / max(len(scored), 1) for k in ("abs_rel", "mesh_fscore")}
-        print(f"| {key} | " + " | ".join(cells) + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} |")
+        mean = {k: sum(per[n].get(k, nan) for n in scored) / max(len(scored), 1)
+                for k in ("abs_rel", "mesh_fscore", "edge_f")}
+        print(f"| {key} | " + " | ".join(cells)
+              + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} | {mean['edge_f']:.3f} |")
     return 0
 
 

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from depth.metrics import depth_metrics, evaluate_depth_folder, flicker
+from depth.metrics import depth_edges, depth_metrics, edge_counts, edge_scores, evaluate_depth_folder, flicker
 from fusion.evaluate import MeshEvalConfig, mesh_metrics
 from poses.evaluate import pose_metrics, umeyama
 from recon.io import save_depth_map
@@ -110,8 +110,38 @@ def test_evaluate_depth_folder(tmp_path):
     r = evaluate_depth_folder(tmp_path, scan)
     assert r["frames"] == 8 and r["abs_rel"] == pytest.approx(0.1, rel=1e-3)
     assert r["mae_std"] > 0 and r["flicker"] > 0.1
+    assert np.isnan(r["edge_f"])  # a bare box room has no occluding edge: no score, not a perfect one
     r = evaluate_depth_folder(tmp_path, scan, align="median")
     assert r["abs_rel"] < 1e-3
+
+
+def _step(columns=40, at=20, near=1.0, far=2.0):
+    d = np.full((30, columns), far, np.float32)
+    d[:, :at] = near  # a box in front of a wall: one occluding edge
+    return d
+
+
+def test_edges_found_at_the_jump_not_on_a_slant():
+    valid = np.ones((30, 40), bool)
+    edges = depth_edges(_step(), valid)
+    assert edges.sum() == 60 and edges[:, 19].all() and edges[:, 20].all()
+    slant = np.tile(np.linspace(1.0, 2.0, 40, dtype=np.float32), (30, 1))  # 1.8 % per pixel: a wall seen obliquely
+    assert not depth_edges(slant, valid).any()
+    hidden = valid.copy()
+    hidden[:, 20] = False
+    assert not depth_edges(_step(), hidden).any()  # no valid pair straddles the jump
+
+
+def test_edge_scores_reward_sharp_and_close_edges_only():
+    gt, valid = _step(), np.ones((30, 40), bool)
+    assert edge_scores([edge_counts(gt, gt, valid)])["edge_f"] == pytest.approx(1.0)
+    assert edge_scores([edge_counts(_step(at=21), gt, valid)])["edge_f"] == pytest.approx(1.0)  # 1 px off: found
+    far = edge_scores([edge_counts(_step(at=26), gt, valid)])
+    assert far["edge_precision"] == 0 and far["edge_f"] == 0  # 6 px off: a wrong edge
+    blurred = gt.copy()
+    blurred[:, 14:26] = np.linspace(1.0, 2.0, 12)  # the same jump spread over 12 px: no edge at all
+    blob = edge_scores([edge_counts(blurred, gt, valid)])
+    assert blob["edge_recall"] == 0 and np.isnan(blob["edge_precision"])
 
 
 # -- poses -------------------------------------------------------------------------------------
