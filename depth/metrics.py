@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.geometry import reproject_depth
+from recon.geometry import mark_neighbour_pairs, reproject_depth
 
 DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "within_5cm")
 SURFACE_TOLERANCE = 0.05  # metres: the mesh F-score's threshold, so `within_5cm` reads as the depth the mesh can use
@@ -58,17 +58,9 @@ def depth_edges(depth_m: np.ndarray, valid: np.ndarray, jump: float = EDGE_JUMP)
     Both sides of an edge are marked; pixels outside `valid` never are.
     """
     log_d = np.log(np.where(valid, np.maximum(depth_m, 1e-6), 1.0))
-    edges = np.zeros(depth_m.shape, dtype=bool)
     limit = np.log(jump)
-    for axis in (0, 1):
-        a = [slice(None)] * 2
-        b = [slice(None)] * 2
-        a[axis], b[axis] = slice(1, None), slice(None, -1)
-        a, b = tuple(a), tuple(b)
-        step = (np.abs(log_d[a] - log_d[b]) > limit) & valid[a] & valid[b]
-        edges[a] |= step
-        edges[b] |= step
-    return edges
+    return mark_neighbour_pairs(lambda lo, hi: (np.abs(log_d[hi] - log_d[lo]) > limit) & valid[lo] & valid[hi],
+                                depth_m.shape)
 
 
 def edge_counts(pred_m: np.ndarray, gt_m: np.ndarray, valid: np.ndarray, tolerance_px: int = EDGE_TOLERANCE_PX

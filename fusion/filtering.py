@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from recon.errors import ReconError
-from recon.geometry import backproject, invert_pose, project, transform_points
+from recon.geometry import backproject, invert_pose, mark_neighbour_pairs, project, transform_points
 from recon.keyframes import pose_distances
 from recon.scan import Intrinsics, Scan
 
@@ -134,17 +134,15 @@ def edge_mask(depth_m: np.ndarray, K: np.ndarray, max_angle_deg: float) -> np.nd
     points = backproject(depth_m, K).astype(np.float32)
     valid = depth_m > 0
     cos2_limit = np.float32(np.cos(np.radians(90.0 - max_angle_deg)) ** 2)
-    edge = np.zeros(depth_m.shape, bool)
-    for lo, hi in (((slice(0, -1), slice(None)), (slice(1, None), slice(None))),   # vertical pairs
-                   ((slice(None), slice(0, -1)), (slice(None), slice(1, None)))):  # horizontal pairs
+
+    def grazing(lo, hi) -> np.ndarray:
         step = points[hi] - points[lo]
         ray = points[lo] + points[hi]  # the pair's mean viewing direction
         along = np.einsum("...i,...i", step, ray)
-        grazing = (along * along > cos2_limit * np.einsum("...i,...i", step, step) * np.einsum("...i,...i", ray, ray))
-        grazing &= valid[lo] & valid[hi]
-        edge[lo] |= grazing
-        edge[hi] |= grazing
-    return edge
+        steep = along * along > cos2_limit * np.einsum("...i,...i", step, step) * np.einsum("...i,...i", ray, ray)
+        return steep & valid[lo] & valid[hi]
+
+    return mark_neighbour_pairs(grazing, depth_m.shape)
 
 
 def nearest_views(camera_to_world: np.ndarray, views: int) -> list[np.ndarray]:

@@ -105,6 +105,24 @@ def pixel_rays(K: np.ndarray, width: int, height: int, dtype=np.float64) -> np.n
     return backproject_pixels(u, v, np.ones((), dtype), np.asarray(K, dtype))
 
 
+NEIGHBOUR_PAIRS = (((slice(0, -1), slice(None)), (slice(1, None), slice(None))),   # vertical pairs
+                   ((slice(None), slice(0, -1)), (slice(None), slice(1, None))))  # horizontal pairs
+
+
+def mark_neighbour_pairs(pair_test, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: both pixels of every vertical or horizontal neighbour pair that `pair_test` flags.
+
+    pair_test(lo, hi) takes the index tuples of the pairs' first and second pixels (use them on any
+    (H, W, ...) array) and returns a bool array of the pairs' shape: one test serves every pixel-pair rule
+    (depth jumps, grazing surfaces)."""
+    marked = np.zeros(shape, bool)
+    for lo, hi in NEIGHBOUR_PAIRS:
+        flagged = pair_test(lo, hi)
+        marked[lo] |= flagged
+        marked[hi] |= flagged
+    return marked
+
+
 def backproject(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Depth map -> camera-frame points. depth_m: (H, W) metres; K: (3, 3) -> (H, W, 3), z = depth."""
     h, w = depth_m.shape

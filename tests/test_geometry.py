@@ -3,7 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from recon.errors import ReconError
-from recon.geometry import (backproject, check_pose, invert_pose, opencv_to_opengl, opengl_to_opencv, project,
+from recon.geometry import (backproject, check_pose, invert_pose, mark_neighbour_pairs, opencv_to_opengl,
+                            opengl_to_opencv, project,
                             quaternion_to_rotation, reproject_depth, transform_points, world_to_camera_to_pose)
 
 from fixtures.box_room import box_room_scan, look_at, room_depth
@@ -83,3 +84,13 @@ def test_reproject_depth_agrees_with_exact_depth_of_other_view():
     assert both.mean() > 0.5
     rel = np.abs(warped[both] - exact[both]) / exact[both]
     assert np.median(rel) < 1e-3
+
+
+def test_mark_neighbour_pairs_marks_both_pixels_of_each_flagged_pair():
+    values = np.zeros((4, 5))
+    values[2, 3] = 1.0  # differs from its four neighbours only
+    marked = mark_neighbour_pairs(lambda lo, hi: values[lo] != values[hi], values.shape)
+    expected = np.zeros((4, 5), bool)
+    expected[2, 3] = expected[1, 3] = expected[3, 3] = expected[2, 2] = expected[2, 4] = True
+    assert np.array_equal(marked, expected)
+    assert not mark_neighbour_pairs(lambda lo, hi: values[lo] > 5, values.shape).any()
