@@ -58,8 +58,7 @@ def sharpener(path: str, size: tuple[int, int]):
     import numpy as np
     import torch
 
-    from depth.model.network import IMAGENET_MEAN, IMAGENET_STD
-    from experiments.train_sharpener import EdgeSharpener, PriorRefiner
+    from experiments.train_sharpener import EdgeSharpener, PriorRefiner, normalise_image
 
     saved = torch.load(path)
     options = saved["options"]
@@ -69,7 +68,6 @@ def sharpener(path: str, size: tuple[int, int]):
         model = EdgeSharpener(tuple(options["channels"]), residual=options.get("residual", False))
     model.eval()
     model.load_state_dict(saved["state_dict"])
-    mean, std = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
 
     def run(depth, rgb, confidence):
         h, w = depth.shape
@@ -77,7 +75,7 @@ def sharpener(path: str, size: tuple[int, int]):
         c = torch.from_numpy(cv2.resize(confidence.astype(np.float32), size))[None, None]
         image = torch.from_numpy(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)).permute(2, 0, 1)[None] / 255.0
         with torch.no_grad():
-            out = model(d, (image - mean) / std, c)[0, 0].numpy()
+            out = model(d, normalise_image(image), c)[0, 0].numpy()
         return cv2.resize(out, (w, h), interpolation=cv2.INTER_NEAREST)
 
     return run

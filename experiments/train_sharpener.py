@@ -49,6 +49,13 @@ def shift_sample(depth: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
     return F.grid_sample(depth, torch.stack([x, y], -1), mode="bilinear", padding_mode="border", align_corners=False)
 
 
+def normalise_image(image: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 1] (B, 3, H, W) -> ImageNet-normalised, as the network's own input."""
+    from depth.model.network import IMAGENET_MEAN, IMAGENET_STD
+
+    return (image - image.new_tensor(IMAGENET_MEAN).view(1, 3, 1, 1)) / image.new_tensor(IMAGENET_STD).view(1, 3, 1, 1)
+
+
 def depth_cues(depth: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
     """(B, 1, H, W) m and (B, 1, h, w) -> (B, 2, H, W): log depth minus its per-map mean (the scene's shape, not
     its scale) and the confidence at the depth's size."""
@@ -163,7 +170,7 @@ def loss_fn(pred: torch.Tensor, gt: torch.Tensor, grad_weight: float) -> torch.T
 
 
 @torch.no_grad()
-def score(model, samples: list[dict], normalise) -> dict:
+def score(model, samples: list[dict]) -> dict:
     """Abs Rel, log L1 and edge P/R/F of the network's maps and of the sharpened ones over `samples`."""
     import numpy as np
 
@@ -173,7 +180,7 @@ def score(model, samples: list[dict], normalise) -> dict:
     counts = {"input": [], "sharpened": []}
     for s in samples:
         b = to_batch([s], None, random.Random(0))
-        pred = model(b["depth"], normalise(b["image"]), b["confidence"])
+        pred = model(b["depth"], normalise_image(b["image"]), b["confidence"])
         gt = b["gt"][0, 0].numpy()
         valid = gt > 0
         for name, d in (("input", b["depth"][0, 0].numpy()), ("sharpened", pred[0, 0].numpy())):
@@ -200,8 +207,6 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
 
-    from depth.model.network import IMAGENET_MEAN, IMAGENET_STD
-
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = random.Random(args.seed)
@@ -211,11 +216,6 @@ def main(argv=None) -> int:
         cut = int(len(samples) * (1 - args.val_share))
         train += samples[:cut]
         val += samples[cut:]
-    mean, std = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
-
-    def normalise(image):
-        return (image - mean) / std
-
     model = PriorRefiner(args.channels[0]) if args.prior else EdgeSharpener(tuple(args.channels), residual=args.residual)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=args.lr)
     warmup = max(1, args.steps // 20)
@@ -228,7 +228,7 @@ def main(argv=None) -> int:
     t0, running = time.time(), []
     for step in range(1, args.steps + 1):
         b = to_batch(rng.sample(train, args.batch), args.crop, rng)
-        pred = model(b["depth"], normalise(b["image"]), b["confidence"])
+        pred = model(b["depth"], normalise_image(b["image"]), b["confidence"])
         loss = loss_fn(pred, b["gt"], args.grad_weight)
         opt.zero_grad()
         loss.backward()
@@ -243,7 +243,7 @@ def main(argv=None) -> int:
             log.write(json.dumps(entry) + "\n")
         if step % args.val_every == 0 or step == args.steps:
             model.eval()
-            entry = {"step": step, "val": score(model, val, normalise)}
+            entry = {"step": step, "val": score(model, val)}
             model.train()
             print(json.dumps(entry), flush=True)
             log.write(json.dumps(entry) + "\n")
