@@ -1,4 +1,6 @@
 """Training: clips, the whole chain learning (overfitting a clip), exact resume."""
+import math
+
 import pytest
 import torch
 
@@ -177,11 +179,37 @@ def test_recalibrated_batchnorm_holds_the_plain_mean_over_its_batches():
     assert torch.equal(bn.running_mean, both[0])  # and nothing was reset
 
 
-def test_mixed_precision_learns_and_fp16_scaler_state_resumes(tmp_path):
+def test_bf16_autocast_gives_the_fp32_loss_and_trains(tmp_path):
+    """Under bf16 autocast a batch's loss and per-stage errors agree with fp32's, and a bf16 training step runs.
+    (A CPU without bf16 kernels runs it 8x slower than fp32: its learning curve is the slow test below.)"""
+    from depth.model import ESTNet
+    from depth.train import clip_loss
+
+    data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
+    batch = next(iter(torch.utils.data.DataLoader(data, 1)))
+    torch.manual_seed(0)
+    net = ESTNet(TINY).eval()  # running BatchNorm statistics, so both passes see the same network
+    with torch.no_grad():
+        loss32, stages32, _ = clip_loss(net, batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            loss16, stages16, _ = clip_loss(net, batch)
+    assert float(loss16) == pytest.approx(float(loss32), rel=0.005)
+    assert stages16 == pytest.approx(stages32, rel=0.005)
+    stepped = train(data, tmp_path / "bf16", _quiet(max_steps=1, lr=1e-3, amp="bf16"), model_config=TINY)
+    assert stepped.steps == 1 and math.isfinite(stepped.losses[0])
+    assert load_checkpoint(stepped.checkpoint).training["step"] == 1
+
+
+@pytest.mark.slow
+def test_bf16_training_learns(tmp_path):
     data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
     torch.manual_seed(0)
     bf16 = train(data, tmp_path / "bf16", _quiet(max_steps=30, lr=2e-3, batch_size=2, amp="bf16"), model_config=TINY)
     assert _drop(bf16.losses) > 2.0
+
+
+def test_fp16_scaler_state_resumes(tmp_path):
+    data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
     torch.manual_seed(0)
     fp16 = train(data, tmp_path / "fp16", _quiet(max_steps=3, lr=1e-3, amp="fp16"), model_config=TINY)
     scaler = load_checkpoint(fp16.checkpoint).training["grad_scaler"]
