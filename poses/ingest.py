@@ -26,6 +26,7 @@ import numpy as np
 from recon import io as rio
 from recon.io import working_size
 from recon.errors import ReconError
+from recon.geometry import focal_px_from_equivalent
 from recon.scan import Intrinsics
 
 log = logging.getLogger(__name__)
@@ -75,12 +76,15 @@ class IngestResult:
     rotation_deg: int = 0  # phone orientation from the container, already applied to the frames
     dropped_blurry: list[str] = field(default_factory=list)
     dropped_static: list[str] = field(default_factory=list)
-    camera: Intrinsics | None = None  # the capture's own pinhole camera at the working size (recorded scans)
+    camera: Intrinsics | None = None  # the capture's own pinhole camera at the working size, SfM's start
+    camera_source: str | None = None  # where `camera` comes from: "scan" (recorded) or "exif" (photos)
 
     def summary(self) -> dict:
         return {"source": self.source, "kind": self.kind, "frames": len(self.frames),
                 "size": list(self.size), "video_fps": self.video_fps, "rotation_deg": self.rotation_deg,
-                "dropped_blurry": len(self.dropped_blurry), "dropped_static": len(self.dropped_static)}
+                "dropped_blurry": len(self.dropped_blurry), "dropped_static": len(self.dropped_static),
+                "camera_source": self.camera_source,
+                "camera_focal_px": round(self.camera.fx, 2) if self.camera is not None else None}
 
 
 def sharpness(rgb_or_gray: np.ndarray) -> float:
@@ -187,11 +191,26 @@ def _scan_format(path: Path) -> str | None:
     return next((r.NAME for r in READERS if r.detect(path)), None)
 
 
+def camera_from_exif(focals_35mm: list[float], size: tuple[int, int]) -> Intrinsics | None:
+    """SfM's starting pinhole camera at `size` from the photos' equivalent focal lengths (their median); None
+    when no photo has one. Bundle adjustment refines it, as COLMAP refines the focal length it reads from
+    EXIF itself (the working copies SfM reads carry none)."""
+    if not focals_35mm:
+        return None
+    mm = float(np.median(focals_35mm))
+    if max(focals_35mm) > 1.05 * min(focals_35mm):
+        log.warning("ingest: the photos were taken at different zooms (%.0f-%.0f mm equivalent); SfM assumes one "
+                    "camera and starts from the median, %.0f mm", min(focals_35mm), max(focals_35mm), mm)
+    width, height = size
+    focal = focal_px_from_equivalent(mm, width, height)
+    return Intrinsics(focal, focal, (width - 1) / 2, (height - 1) / 2, width, height)
+
+
 def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> IngestResult:
     from recon.readers._common import numbered_files
 
     files = numbered_files(folder, IMAGE_SUFFIXES)[:: config.stride][: config.max_frames]
-    frames, size, first_size = [], None, None
+    frames, size, first_size, focals = [], None, None, []
     for i, f in enumerate(files):
         try:  # through rio, so a broken file is one warning line, never libpng's own
             bgr = cv2.cvtColor(rio.read_image(f), cv2.COLOR_RGB2BGR)
@@ -207,10 +226,18 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
         rgb = cv2.cvtColor(cv2.resize(bgr, size, interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
         name = f.stem
         frames.append(IngestedFrame(name, out_dir / f"{name}.jpg", i * config.stride, None, sharpness(rgb)))
-        rio.write_image(frames[-1].path, rgb, config.jpeg_quality)
+        rio.write_image(frames[-1].path, rgb, config.jpeg_quality)  # working copies carry no EXIF: read it here
+        focal = rio.read_exif_focal_35mm(f)
+        if focal is not None:
+            focals.append(focal)
     if size is None:
         raise ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format")
-    return IngestResult(frames, out_dir, str(folder), "images", size)
+    camera = camera_from_exif(focals, size)
+    if camera is not None:
+        log.info("ingest: %d of %d photos give a 35 mm-equivalent focal length: SfM starts from %.1f px",
+                 len(focals), len(frames), camera.fx)
+    return IngestResult(frames, out_dir, str(folder), "images", size, camera=camera,
+                        camera_source="exif" if camera is not None else None)
 
 
 def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> IngestResult:
@@ -227,7 +254,7 @@ def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> I
                                     f.source_index if f.source_index is not None else i * config.stride,
                                     f.timestamp, sharpness(rgb)))
         rio.write_image(frames[-1].path, rgb, config.jpeg_quality)
-    return IngestResult(frames, out_dir, str(path), "scan", size, camera=scan.intrinsics)
+    return IngestResult(frames, out_dir, str(path), "scan", size, camera=scan.intrinsics, camera_source="scan")
 
 
 # -- selection ---------------------------------------------------------------------------------

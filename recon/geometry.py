@@ -19,6 +19,20 @@ def intrinsic_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
+FULL_FRAME_DIAGONAL_MM = float(np.hypot(36.0, 24.0))  # 35 mm film, the frame an "equivalent" focal length refers to
+
+
+def focal_px_from_equivalent(focal_35mm: float, width: int, height: int) -> float:
+    """Focal length in pixels of a `width` x `height` image from its 35 mm-equivalent focal length in mm
+    (EXIF FocalLengthIn35mmFilm): the same field of view across the diagonal."""
+    return focal_35mm / FULL_FRAME_DIAGONAL_MM * float(np.hypot(width, height))
+
+
+def equivalent_focal_mm(focal_px: float, width: int, height: int) -> float:
+    """The inverse of `focal_px_from_equivalent`."""
+    return focal_px * FULL_FRAME_DIAGONAL_MM / float(np.hypot(width, height))
+
+
 def invert_pose(pose: np.ndarray) -> np.ndarray:
     """Inverse of a rigid 4x4 transform (R^T, -R^T t), exact for rotations.
 

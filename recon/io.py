@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import logging
 import os
@@ -100,14 +101,41 @@ def captured_stderr() -> Iterator[list[str]]:
         os.close(saved)
 
 
-def write_image(path: str | os.PathLike, rgb: np.ndarray, jpeg_quality: int = 95) -> None:
-    """Write a uint8 RGB image atomically (format from the suffix)."""
+def write_image(path: str | os.PathLike, rgb: np.ndarray, jpeg_quality: int = 95,
+                focal_35mm: int | None = None) -> None:
+    """Write a uint8 RGB image atomically (format from the suffix); a JPEG with `focal_35mm` carries it as
+    EXIF FocalLengthIn35mmFilm, as a phone's photo does."""
     path = Path(path)
-    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if path.suffix.lower() in (".jpg", ".jpeg") else []
+    jpeg = path.suffix.lower() in (".jpg", ".jpeg")
+    if jpeg and focal_35mm is not None:
+        from PIL import Image
+
+        exif = Image.Exif()
+        exif.get_ifd(EXIF_IFD)[FOCAL_35MM_TAG] = int(focal_35mm)
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, format="JPEG", quality=jpeg_quality, exif=exif)
+        write_bytes_atomic(path, buf.getvalue())
+        return
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if jpeg else []
     ok, buf = cv2.imencode(path.suffix, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params)
     if not ok:
         raise ReconError(f"{path}: could not encode image")
     write_bytes_atomic(path, buf.tobytes())
+
+
+EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405  # EXIF's sub-IFD and its FocalLengthIn35mmFilm tag
+
+
+def read_exif_focal_35mm(path: str | os.PathLike) -> float | None:
+    """A photo's 35 mm-equivalent focal length in mm (EXIF FocalLengthIn35mmFilm, which phones write), or None."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            value = float(image.getexif().get_ifd(EXIF_IFD).get(FOCAL_35MM_TAG, 0))
+    except (OSError, UnidentifiedImageError, ValueError, TypeError):  # unreadable, or a tag that is not a number
+        return None
+    return value if np.isfinite(value) and value > 0 else None
 
 
 def read_depth_png(path: str | os.PathLike, units_per_metre: float = MM_PER_M) -> np.ndarray:

@@ -114,3 +114,31 @@ def test_helpers():
     sharp[4] = 20.0
     assert blurry_indices(sharp, window=9, ratio=0.35) == [4]
     assert blurry_indices([5.0] * 9, window=9, ratio=0.35) == []  # uniformly soft footage is not "blurry"
+
+
+def test_photo_folder_starts_sfm_from_the_exif_focal_length(tmp_path, caplog):
+    """Phone photos carry their 35 mm-equivalent focal length; the working copies SfM reads do not, so ingest
+    turns it into SfM's starting camera at the working size (the median when the photos disagree)."""
+    from recon.geometry import equivalent_focal_mm, focal_px_from_equivalent
+    from recon.io import read_exif_focal_35mm, write_image
+
+    tex = texture(2)
+    plain, phone = tmp_path / "plain", tmp_path / "phone"
+    plain.mkdir(), phone.mkdir()
+    for i in range(12):
+        view = np.ascontiguousarray(cv2.resize(tex[:480, i * 10:i * 10 + 640], (640, 480))[..., ::-1])
+        write_image(plain / f"IMG_{i:04d}.jpg", view)
+        write_image(phone / f"IMG_{i:04d}.jpg", view, focal_35mm=52 if i == 11 else 26)  # one zoomed photo
+    assert read_exif_focal_35mm(phone / "IMG_0000.jpg") == 26 and read_exif_focal_35mm(plain / "IMG_0000.jpg") is None
+    assert equivalent_focal_mm(focal_px_from_equivalent(26, 640, 480), 640, 480) == pytest.approx(26)
+
+    without = ingest(plain, tmp_path / "f1", IngestConfig(max_size=320))
+    assert without.camera is None and without.summary()["camera_source"] is None
+    with caplog.at_level("WARNING", logger="poses.ingest"):
+        result = ingest(phone, tmp_path / "f2", IngestConfig(max_size=320))
+    assert result.size == (320, 240) and result.camera_source == "exif"
+    # 26 mm across the 43.3 mm diagonal of 35 mm film: 400 px across the 320x240 diagonal -> 240.4 px
+    assert result.camera.fx == result.camera.fy == pytest.approx(26 / np.hypot(36, 24) * 400)
+    assert (result.camera.cx, result.camera.cy) == (159.5, 119.5)
+    assert result.summary()["camera_focal_px"] == pytest.approx(240.37, abs=0.01)
+    assert "different zooms (26-52 mm" in caplog.text

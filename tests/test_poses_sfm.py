@@ -323,3 +323,25 @@ def test_our_import_order_keeps_png_writing_alive(tmp_path):
     assert cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED).shape == (256, 320)
     if run("import pycolmap").returncode == 0:
         pytest.skip("pycolmap first no longer breaks PNG writing: the import-order note in docs/poses.md can go")
+
+
+def test_an_exif_camera_is_where_colmap_starts(tmp_path):
+    """The camera ingest reads from the photos' EXIF is the shared camera COLMAP's database starts from."""
+    import pycolmap
+
+    from poses.sfm import SfMConfig, extract_features
+    from recon.scan import Intrinsics
+
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"IMG_{i}.jpg"), rng.integers(0, 255, (240, 320, 3), dtype=np.uint8))
+    database = tmp_path / "database.db"
+    extract_features(tmp_path, [f"IMG_{i}.jpg" for i in range(3)], database, SfMConfig(), {},
+                     Intrinsics(240.37, 240.37, 159.5, 119.5, 320, 240), ordered=False)
+    db = pycolmap.Database.open(database)
+    try:
+        cameras = db.read_all_cameras()
+    finally:
+        db.close()
+    assert len(cameras) == 1 and cameras[0].has_prior_focal_length
+    assert list(cameras[0].params) == pytest.approx([240.37, 160.0, 120.0, 0.0])

@@ -5,7 +5,8 @@ Four sections (`--sections`), each printed as a table with the issue's target be
   rooms         rendered room videos (40 frames, one seed each), each posed `--runs` times: are the
                 runs identical (poses to 1e-6), is >= 95 % registered, is ATE <= 2 % of the path?
   photos        folders of 50 wide-baseline photos of rendered rooms (25 degrees apart round the
-                room, shuffled names; `--photo-rooms` seeds): share registered, ATE.
+                room, shuffled names; `--photo-rooms` seeds), each as plain JPEGs and as a phone writes
+                them (EXIF 35 mm-equivalent focal length): share registered, ATE, focal length error.
   kitchen       7-Scenes kitchen, every 5th frame, 200 frames (640x480), posed `--runs` times:
                 registered, ATE, time end to end (target <= 60 s on 2 cores), identical runs.
   kitchen-video the same 200 frames as an mp4, through the whole pipeline as a plain video, with the
@@ -114,11 +115,14 @@ def bench_photos(args, root: Path) -> dict:
 
     out = {}
     for seed in range(args.photo_rooms):
-        folder = write_photo_collection(SynthConfig(seed=seed, frames=50, width=640, height=480),
-                                        root / f"photos{seed}", step_deg=25.0)
-        # Photos are not a video: no neighbours to call a frame blurry against.
-        out[seed] = _pose_runs(folder / PHOTOS, open_scan(folder / GROUND_TRUTH), folder / "sfm", 1,
-                               PosesConfig(ingest=IngestConfig(blur_ratio=0.0)))
+        for exif in (False, True):
+            key = f"{seed} exif" if exif else str(seed)
+            folder = write_photo_collection(SynthConfig(seed=seed, frames=50, width=640, height=480),
+                                            root / f"photos{seed}{'_exif' if exif else ''}", step_deg=25.0, exif=exif)
+            gt = open_scan(folder / GROUND_TRUTH)
+            # Photos are not a video: no neighbours to call a frame blurry against.
+            out[key] = _pose_runs(folder / PHOTOS, gt, folder / "sfm", 1, PosesConfig(ingest=IngestConfig(blur_ratio=0.0)))
+            out[key]["true_focal_px"], out[key]["true_width"] = gt.intrinsics.fx, gt.intrinsics.width
     return out
 
 
@@ -237,15 +241,17 @@ def print_tables(summary: dict) -> None:
         console.print(_room_verdict(summary["rooms"]))
     if "photos" in summary:
         table = Table(title="photo collections: 50 photos 25 degrees apart, shuffled names (target >= 95 % registered)")
-        for col in ("seed", "registered", "ATE", "first attempt", "wall / CPU s"):
+        for col in ("seed", "registered", "ATE", "focal error", "first attempt", "wall / CPU s"):
             table.add_column(col, justify="right")
         for seed, photos in summary["photos"].items():
             row = photos["runs"][0]
             if "error" in row:
-                table.add_row(str(seed), "failed", row["error"][:50], "", "")
+                table.add_row(str(seed), "failed", row["error"][:50], "", "", "")
                 continue
             first = row["attempts"][0]
-            table.add_row(str(seed), _share(row), f"{row['ate_m'] * 100:.1f} cm",
+            focal_error = (row["camera"]["params"][0] * photos["true_width"] / row["camera"]["width"]
+                           / photos["true_focal_px"] - 1.0)
+            table.add_row(str(seed), _share(row), f"{row['ate_m'] * 100:.1f} cm", f"{focal_error:+.2%}",
                           f"{first['attempt']} {first['registered']}", f"{row['wall_s']:.0f}/{row['cpu_s']:.0f}")
         console.print(table)
     if "kitchen" in summary:

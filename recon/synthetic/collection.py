@@ -16,6 +16,7 @@ import numpy as np
 
 from recon import io as rio
 from recon.errors import ReconError
+from recon.geometry import equivalent_focal_mm
 from recon.scan import Frame, save_scan
 
 from .generate import SynthConfig, _render_frames, _scan, camera_intrinsics, scene_mesh
@@ -51,9 +52,11 @@ def orbit_centre(scene, renderer: Renderer, clearance: float) -> np.ndarray:
     return max(candidates, key=directions_seen)
 
 
-def write_photo_collection(synth: SynthConfig, out_dir: str | os.PathLike, step_deg: float = 25.0) -> Path:
+def write_photo_collection(synth: SynthConfig, out_dir: str | os.PathLike, step_deg: float = 25.0,
+                           exif: bool = False) -> Path:
     """Render `synth.frames` photos of room `synth.seed` with `synth`'s camera, `step_deg` degrees apart:
-    `out_dir/photos/IMG_NNNN.jpg` (shuffled names) and `out_dir/ground_truth/` (canonical scan).
+    `out_dir/photos/IMG_NNNN.jpg` (shuffled names) and `out_dir/ground_truth/` (canonical scan). With `exif`
+    each photo carries its 35 mm-equivalent focal length in whole millimetres, as a phone writes it.
 
     The folder appears only when complete (an existing one is replaced then).
     """
@@ -82,6 +85,7 @@ def write_photo_collection(synth: SynthConfig, out_dir: str | os.PathLike, step_
         scene_mesh(scene, library).export(mesh_path)
         save_scan(scan, staging / GROUND_TRUTH, image_ext=".jpg", gt_mesh_src=mesh_path)
         (staging / PHOTOS).mkdir()
+        focal_35mm = round(equivalent_focal_mm(intrinsics.fx, intrinsics.width, intrinsics.height)) if exif else None
         for name, img in zip(names, images):
-            rio.write_image(staging / PHOTOS / f"{name}.jpg", img, 95)
+            rio.write_image(staging / PHOTOS / f"{name}.jpg", img, 95, focal_35mm=focal_35mm)
     return out_dir
