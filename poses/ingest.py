@@ -122,14 +122,48 @@ def ingest(source: str | os.PathLike, out_dir: str | os.PathLike, config: Ingest
     out_dir = rio.own_folder(out_dir)  # emptied below: never through a link to someone's photos
     for old in out_dir.glob("*.jpg"):  # a re-run must not mix in frames of an earlier selection
         rio.remove_path(old)
-    scan_format = _scan_format(source)
-    if scan_format:
-        result = _ingest_scan(source, scan_format, out_dir, config)
+    fmt = scan_format(source)
+    if fmt:
+        result = _ingest_scan(source, fmt, out_dir, config)
     elif source.is_file():
         result = _ingest_video(source, out_dir, config)
     else:
         result = _ingest_image_folder(source, out_dir, config)
     return _finish(result, config)
+
+
+def describe_capture(source: str | os.PathLike) -> dict:
+    """What a video or a photo folder holds, read from its header and files without decoding it all
+    (`recon info` on what `recon run` poses by SfM). Raises ReconError for anything else."""
+    source = Path(source)
+    if not source.exists():
+        raise ReconError(f"{source}: no such file or folder")
+    if source.is_file():
+        cap = rio.open_video(source)
+        try:
+            fps = cap.get(cv2.CAP_PROP_FPS) or 0.0
+            frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            ok, bgr = cap.read()  # the decoded size, with the container's rotation applied
+            rotation = int(round(cap.get(cv2.CAP_PROP_ORIENTATION_META) or 0)) % 360
+        finally:
+            cap.release()
+        if not ok or bgr is None:
+            raise ReconError(f"{source}: the video has no decodable frames (zero-length or damaged)")
+        return {"path": str(source), "kind": "video", "frames": frames, "size": [bgr.shape[1], bgr.shape[0]],
+                "video_fps": round(fps, 3) if fps > 0 else None,
+                "duration_s": round(frames / fps, 2) if fps > 0 else None, "rotation_deg": rotation,
+                "poses": "SfM (pycolmap)"}
+    from recon.readers._common import numbered_files
+
+    files = numbered_files(source, IMAGE_SUFFIXES)
+    if not files:
+        raise ReconError(f"{source}: no images (.jpg/.png) and not a known scan format (see `recon formats`)")
+    first = rio.read_image(files[0])
+    focals = [f for f in map(rio.read_exif_focal_35mm, files) if f is not None]
+    camera = camera_from_exif(focals, (first.shape[1], first.shape[0]))
+    return {"path": str(source), "kind": "photos", "frames": len(files), "size": [first.shape[1], first.shape[0]],
+            "exif_focal_35mm": float(np.median(focals)) if focals else None, "photos_with_exif_focal": len(focals),
+            "focal_px": round(camera.fx, 2) if camera is not None else None, "poses": "SfM (pycolmap), all pairs"}
 
 
 # -- sources -----------------------------------------------------------------------------------
@@ -184,7 +218,7 @@ def _keep(best: tuple[int, IngestedFrame, np.ndarray], frames: list[IngestedFram
     frames.append(frame)
 
 
-def _scan_format(path: Path) -> str | None:
+def scan_format(path: Path) -> str | None:
     """The reader that recognises `path` as a recorded scan, or None for a plain video/image folder."""
     from recon.readers import READERS
 

@@ -51,6 +51,33 @@ def test_fuse_eval_convert_info(scan_dir, tmp_path, capsys):
     assert info["frames"] == 3 and info["intrinsics"]["width"] == 48 and info["has_depth"]
 
 
+def test_info_describes_a_video_and_a_photo_folder(tmp_path, capsys):
+    """`recon info` takes what `recon run` takes: a phone video and a folder of photos too (what SfM will get)."""
+    import cv2
+
+    from recon.io import write_image
+
+    writer = cv2.VideoWriter(str(tmp_path / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 24.0, (64, 48))
+    rng = np.random.default_rng(0)
+    for _ in range(36):
+        writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    writer.release()
+    assert main(["info", str(tmp_path / "clip.mp4"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert (info["kind"], info["frames"], info["size"], info["video_fps"], info["duration_s"]) == (
+        "video", 36, [64, 48], 24.0, 1.5)
+    (tmp_path / "photos").mkdir()
+    for i in range(4):
+        write_image(tmp_path / "photos" / f"IMG_{i}.jpg", rng.integers(0, 255, (30, 40, 3), dtype=np.uint8),
+                    focal_35mm=26 if i else None)
+    assert main(["info", str(tmp_path / "photos"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert (info["kind"], info["frames"], info["size"], info["photos_with_exif_focal"]) == ("photos", 4, [40, 30], 3)
+    assert info["focal_px"] == pytest.approx(26 / np.hypot(36, 24) * 50, abs=0.01)
+    (tmp_path / "empty").mkdir()
+    one_line_error(recon("info", str(tmp_path / "empty")), "no images")
+
+
 def test_eval_depth_and_poses(scan_dir, tmp_path, capsys):
     from recon.readers import open_scan
     from recon.io import save_depth_map
