@@ -78,12 +78,13 @@ class IngestResult:
     dropped_static: list[str] = field(default_factory=list)
     camera: Intrinsics | None = None  # the capture's own pinhole camera at the working size, SfM's start
     camera_source: str | None = None  # where `camera` comes from: "scan" (recorded) or "exif" (photos)
+    turned: list[str] = field(default_factory=list)  # photos turned a quarter to the folder's orientation
 
     def summary(self) -> dict:
         return {"source": self.source, "kind": self.kind, "frames": len(self.frames),
                 "size": list(self.size), "video_fps": self.video_fps, "rotation_deg": self.rotation_deg,
                 "dropped_blurry": len(self.dropped_blurry), "dropped_static": len(self.dropped_static),
-                "camera_source": self.camera_source,
+                "turned_photos": len(self.turned), "camera_source": self.camera_source,
                 "camera_focal_px": round(self.camera.fx, 2) if self.camera is not None else None}
 
 
@@ -244,34 +245,50 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
     from recon.readers._common import numbered_files
 
     files = numbered_files(folder, IMAGE_SUFFIXES)[:: config.stride][: config.max_frames]
-    frames, size, first_size, focals = [], None, None, []
+    shape = _folder_shape(folder, files)
+    frames, focals, turned = [], [], []
     for i, f in enumerate(files):
         try:  # through rio, so a broken file is one warning line, never libpng's own
-            bgr = cv2.cvtColor(rio.read_image(f), cv2.COLOR_RGB2BGR)
+            rgb = rio.read_image(f)
         except ReconError as exc:
             log.warning("%s; skipped", exc)
             continue
-        if size is None:
-            first_size = (bgr.shape[1], bgr.shape[0])
-            size = working_size(*first_size, config.max_size)
-        if (bgr.shape[1], bgr.shape[0]) != first_size:
-            raise ReconError(f"{f}: image is {bgr.shape[1]}x{bgr.shape[0]}, the folder's first is "
-                             f"{first_size[0]}x{first_size[1]}; SfM assumes one camera, so pass images of one size")
-        rgb = cv2.cvtColor(cv2.resize(bgr, size, interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
-        name = f.stem
-        frames.append(IngestedFrame(name, out_dir / f"{name}.jpg", i * config.stride, None, sharpness(rgb)))
+        if (rgb.shape[0], rgb.shape[1]) == shape != shape[::-1]:  # the other orientation: one camera, turned
+            rgb = cv2.rotate(rgb, cv2.ROTATE_90_CLOCKWISE)
+            turned.append(f.stem)
+        if (rgb.shape[1], rgb.shape[0]) != shape:
+            raise ReconError(f"{f}: image is {rgb.shape[1]}x{rgb.shape[0]}, the folder's photos are {shape[0]}x"
+                             f"{shape[1]} (or turned); SfM assumes one camera, so pass photos of one size")
+        rgb = cv2.resize(rgb, working_size(*shape, config.max_size), interpolation=cv2.INTER_AREA)
+        frames.append(IngestedFrame(f.stem, out_dir / f"{f.stem}.jpg", i * config.stride, None, sharpness(rgb)))
         rio.write_image(frames[-1].path, rgb, config.jpeg_quality)  # working copies carry no EXIF: read it here
         focal = rio.read_exif_focal_35mm(f)
         if focal is not None:
             focals.append(focal)
-    if size is None:
+    if not frames:
         raise ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format")
+    if turned:
+        landscape = shape[0] >= shape[1]
+        log.warning("ingest: %d of %d photos are %s (%s); they are turned a quarter to the folder's %s orientation, "
+                    "so that one camera fits all (their poses keep the turn)", len(turned), len(frames),
+                    "portrait" if landscape else "landscape", ", ".join(turned[:5]) + (" ..." if len(turned) > 5 else ""),
+                    "landscape" if landscape else "portrait")
+    size = working_size(*shape, config.max_size)
     camera = camera_from_exif(focals, size)
     if camera is not None:
         log.info("ingest: %d of %d photos give a 35 mm-equivalent focal length: SfM starts from %.1f px",
                  len(focals), len(frames), camera.fx)
     return IngestResult(frames, out_dir, str(folder), "images", size, camera=camera,
-                        camera_source="exif" if camera is not None else None)
+                        camera_source="exif" if camera is not None else None, turned=turned)
+
+
+def _folder_shape(folder: Path, files: list[Path]) -> tuple[int, int]:
+    """(width, height) of the folder's photos in the orientation most of them have (landscape on a tie)."""
+    sizes = [s for s in map(rio.image_size, files) if s is not None]
+    if not sizes:
+        raise ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format")
+    landscape = sum(w >= h for w, h in sizes) * 2 >= len(sizes)
+    return next(s for s in sizes if (s[0] >= s[1]) == landscape)
 
 
 def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> IngestResult:

@@ -123,6 +123,21 @@ def write_image(path: str | os.PathLike, rgb: np.ndarray, jpeg_quality: int = 95
     write_bytes_atomic(path, buf.tobytes())
 
 
+def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(width, height) as `read_image` returns the image (EXIF orientation applied), from its header only;
+    None when it cannot be read."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            width, height = image.size
+            turned = image.getexif().get(EXIF_ORIENTATION_TAG, 1) in (5, 6, 7, 8)  # a quarter turn
+    except (OSError, UnidentifiedImageError):
+        return None
+    return (height, width) if turned else (width, height)
+
+
+EXIF_ORIENTATION_TAG = 0x0112
 EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405  # EXIF's sub-IFD and its FocalLengthIn35mmFilm tag
 
 

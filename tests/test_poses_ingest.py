@@ -142,3 +142,26 @@ def test_photo_folder_starts_sfm_from_the_exif_focal_length(tmp_path, caplog):
     assert (result.camera.cx, result.camera.cy) == (159.5, 119.5)
     assert result.summary()["camera_focal_px"] == pytest.approx(240.37, abs=0.01)
     assert "different zooms (26-52 mm" in caplog.text
+
+
+def test_photos_of_both_orientations_are_turned_to_the_folders(tmp_path, caplog):
+    """A phone's photo folder mixes landscape and portrait shots of one camera: the minority is turned a quarter
+    (said in one warning, counted in the summary) so that SfM's one camera fits every photo."""
+    from recon.io import write_image
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    tex = texture(3)
+    views = [np.ascontiguousarray(tex[:H, i * 7:i * 7 + W]) for i in range(10)]
+    for i, view in enumerate(views):
+        write_image(folder / f"IMG_{i:04d}.jpg", np.rot90(view, 1) if i in (2, 5, 7) else view)  # three in portrait
+    with caplog.at_level("WARNING", logger="poses.ingest"):
+        result = ingest(folder, tmp_path / "frames", IngestConfig(blur_ratio=0.0))
+    assert result.size == (W, H) and result.summary()["turned_photos"] == 3
+    assert result.turned == ["IMG_0002", "IMG_0005", "IMG_0007"] and "3 of 10 photos are portrait" in caplog.text
+    for i in (2, 5):  # a counter-clockwise portrait turned clockwise: the landscape shot again (up to JPEG noise)
+        back = cv2.cvtColor(cv2.imread(str(result.frames[i].path)), cv2.COLOR_BGR2RGB).astype(float)
+        assert np.abs(back - views[i]).mean() < 10 < np.abs(back - np.rot90(views[i], 2)).mean()
+    write_image(folder / "IMG_0100.jpg", tex[:100, :150])
+    with pytest.raises(ReconError, match="one size"):
+        ingest(folder, tmp_path / "frames2")

@@ -5,8 +5,9 @@ Four sections (`--sections`), each printed as a table with the issue's target be
   rooms         rendered room videos (40 frames, one seed each), each posed `--runs` times: are the
                 runs identical (poses to 1e-6), is >= 95 % registered, is ATE <= 2 % of the path?
   photos        folders of 50 wide-baseline photos of rendered rooms (25 degrees apart round the
-                room, shuffled names; `--photo-rooms` seeds), each as plain JPEGs and as a phone writes
-                them (EXIF 35 mm-equivalent focal length): share registered, ATE, focal length error.
+                room, shuffled names; `--photo-rooms` seeds), each as plain JPEGs, as a phone writes
+                them (EXIF 35 mm-equivalent focal length), and with every third photo in portrait:
+                share registered, ATE, focal length error.
   kitchen       7-Scenes kitchen, every 5th frame, 200 frames (640x480), posed `--runs` times:
                 registered, ATE, time end to end (target <= 60 s on 2 cores), identical runs.
   kitchen-video the same 200 frames as an mp4, through the whole pipeline as a plain video, with the
@@ -114,11 +115,13 @@ def bench_photos(args, root: Path) -> dict:
     from recon.synthetic.generate import SynthConfig
 
     out = {}
+    variants = {"": {}, " exif": {"exif": True}, " portraits": {"portrait_every": 3}}
     for seed in range(args.photo_rooms):
-        for exif in (False, True):
-            key = f"{seed} exif" if exif else str(seed)
+        for tag, variant in variants.items():
+            key = f"{seed}{tag}"
             folder = write_photo_collection(SynthConfig(seed=seed, frames=50, width=640, height=480),
-                                            root / f"photos{seed}{'_exif' if exif else ''}", step_deg=25.0, exif=exif)
+                                            root / f"photos{seed}{tag.strip() and '_' + tag.strip()}", step_deg=25.0,
+                                            **variant)
             gt = open_scan(folder / GROUND_TRUTH)
             # Photos are not a video: no neighbours to call a frame blurry against.
             out[key] = _pose_runs(folder / PHOTOS, gt, folder / "sfm", 1, PosesConfig(ingest=IngestConfig(blur_ratio=0.0)))

@@ -53,10 +53,12 @@ def orbit_centre(scene, renderer: Renderer, clearance: float) -> np.ndarray:
 
 
 def write_photo_collection(synth: SynthConfig, out_dir: str | os.PathLike, step_deg: float = 25.0,
-                           exif: bool = False) -> Path:
+                           exif: bool = False, portrait_every: int = 0) -> Path:
     """Render `synth.frames` photos of room `synth.seed` with `synth`'s camera, `step_deg` degrees apart:
     `out_dir/photos/IMG_NNNN.jpg` (shuffled names) and `out_dir/ground_truth/` (canonical scan). With `exif`
-    each photo carries its 35 mm-equivalent focal length in whole millimetres, as a phone writes it.
+    each photo carries its 35 mm-equivalent focal length in whole millimetres, as a phone writes it; with
+    `portrait_every` N, every N-th photo is saved turned a quarter (a portrait shot; the ground truth keeps
+    the landscape camera, whose centre is the same).
 
     The folder appears only when complete (an existing one is replaced then).
     """
@@ -86,6 +88,8 @@ def write_photo_collection(synth: SynthConfig, out_dir: str | os.PathLike, step_
         save_scan(scan, staging / GROUND_TRUTH, image_ext=".jpg", gt_mesh_src=mesh_path)
         (staging / PHOTOS).mkdir()
         focal_35mm = round(equivalent_focal_mm(intrinsics.fx, intrinsics.width, intrinsics.height)) if exif else None
-        for name, img in zip(names, images):
-            rio.write_image(staging / PHOTOS / f"{name}.jpg", img, 95, focal_35mm=focal_35mm)
+        for i, (name, img) in enumerate(zip(names, images)):
+            turned = portrait_every and i % portrait_every == 0
+            rio.write_image(staging / PHOTOS / f"{name}.jpg", np.ascontiguousarray(np.rot90(img)) if turned else img,
+                            95, focal_35mm=focal_35mm)
     return out_dir
