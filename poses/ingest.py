@@ -159,12 +159,14 @@ def describe_capture(source: str | os.PathLike) -> dict:
     files = numbered_files(source, IMAGE_SUFFIXES)
     if not files:
         raise ReconError(f"{source}: no images (.jpg/.png) and not a known scan format (see `recon formats`)")
-    first = rio.read_image(files[0])
+    shape = _folder_shape(source, files)
+    turned = sum(rio.image_size(f) == shape[::-1] != shape for f in files)
     focals = [f for f in map(rio.read_exif_focal_35mm, files) if f is not None]
-    camera = camera_from_exif(focals, (first.shape[1], first.shape[0]))
-    return {"path": str(source), "kind": "photos", "frames": len(files), "size": [first.shape[1], first.shape[0]],
-            "exif_focal_35mm": float(np.median(focals)) if focals else None, "photos_with_exif_focal": len(focals),
-            "focal_px": round(camera.fx, 2) if camera is not None else None, "poses": "SfM (pycolmap), all pairs"}
+    camera = camera_from_exif(focals, shape)
+    return {"path": str(source), "kind": "photos", "frames": len(files), "size": list(shape),
+            "other_orientation": turned, "exif_focal_35mm": float(np.median(focals)) if focals else None,
+            "photos_with_exif_focal": len(focals), "focal_px": round(camera.fx, 2) if camera is not None else None,
+            "poses": "SfM (pycolmap), all pairs"}
 
 
 # -- sources -----------------------------------------------------------------------------------

@@ -67,12 +67,13 @@ def test_info_describes_a_video_and_a_photo_folder(tmp_path, capsys):
     assert (info["kind"], info["frames"], info["size"], info["video_fps"], info["duration_s"]) == (
         "video", 36, [64, 48], 24.0, 1.5)
     (tmp_path / "photos").mkdir()
-    for i in range(4):
-        write_image(tmp_path / "photos" / f"IMG_{i}.jpg", rng.integers(0, 255, (30, 40, 3), dtype=np.uint8),
+    for i, shape in enumerate([(30, 40, 3)] * 3 + [(40, 30, 3)]):  # the last one a portrait shot
+        write_image(tmp_path / "photos" / f"IMG_{i}.jpg", rng.integers(0, 255, shape, dtype=np.uint8),
                     focal_35mm=26 if i else None)
     assert main(["info", str(tmp_path / "photos"), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert (info["kind"], info["frames"], info["size"], info["photos_with_exif_focal"]) == ("photos", 4, [40, 30], 3)
+    assert (info["kind"], info["frames"], info["size"], info["photos_with_exif_focal"], info["other_orientation"]) == (
+        "photos", 4, [40, 30], 3, 1)
     assert info["focal_px"] == pytest.approx(26 / np.hypot(36, 24) * 50, abs=0.01)
     (tmp_path / "empty").mkdir()
     one_line_error(recon("info", str(tmp_path / "empty")), "no images")
