@@ -6,6 +6,8 @@ maps normalised -1 / +1 to the first / last pixel centre.
 """
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import torch
 import torch.nn.functional as F
 
@@ -110,7 +112,8 @@ def _project_planes(K_ref: torch.Tensor, K_src: torch.Tensor, ref_camera_to_worl
     which puts coordinates up to 0.125 px off at 80x64 (and a relative pose 0.2 degrees).
     """
     work = _sampling_dtype(K_ref)
-    with torch.autocast(K_ref.device.type, enabled=False):
+    device = K_ref.device.type
+    with torch.autocast(device, enabled=False) if torch.amp.is_autocast_available(device) else nullcontext():
         K_ref, K_src, depths = K_ref.to(work), K_src.to(work), depths.to(work)
         ref_to_src = relative_pose(ref_camera_to_world.to(work), src_camera_to_world.to(work))
         pix = pixel_grid(height, width, work, K_ref.device)  # (3, HW)

@@ -109,7 +109,7 @@ def one_line_error(proc: subprocess.CompletedProcess, *fragments: str) -> None:
 def test_bad_input_gives_one_line_and_exit_2(tmp_path):
     one_line_error(recon("fuse", str(tmp_path / "missing"), "--out", str(tmp_path / "m.ply")), "no such file")
     (tmp_path / "empty").mkdir()
-    one_line_error(recon("info", str(tmp_path / "empty")), "unknown scan format")
+    one_line_error(recon("info", str(tmp_path / "empty")), "not a known scan format")
     ref = box_room_scan(4, 32, 24)
     WRITERS["7scenes"](ref, tmp_path / "bad")
     np.savetxt(tmp_path / "bad/frame-000001.pose.txt", np.ones((4, 4)))
