@@ -165,3 +165,20 @@ def test_photos_of_both_orientations_are_turned_to_the_folders(tmp_path, caplog)
     write_image(folder / "IMG_0100.jpg", tex[:100, :150])
     with pytest.raises(ReconError, match="one size"):
         ingest(folder, tmp_path / "frames2")
+
+
+def test_image_size_from_the_header_agrees_with_the_decoded_image(tmp_path):
+    """Ingest sorts photos by orientation from their headers; a phone's EXIF quarter turn (orientation 6) is
+    applied by the decoder, so the header's size must be turned the same way."""
+    from PIL import Image
+
+    from recon.io import image_size, read_image
+
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90 degrees clockwise to display"
+    Image.fromarray(np.zeros((30, 40, 3), np.uint8)).save(tmp_path / "turned.jpg", exif=exif)
+    Image.fromarray(np.zeros((30, 40, 3), np.uint8)).save(tmp_path / "plain.jpg")
+    for name in ("turned.jpg", "plain.jpg"):
+        height, width = read_image(tmp_path / name).shape[:2]
+        assert image_size(tmp_path / name) == (width, height)
+    assert image_size(tmp_path / "turned.jpg") == (30, 40) and image_size(tmp_path / "missing.jpg") is None
