@@ -157,10 +157,9 @@ def describe_capture(source: str | os.PathLike) -> dict:
     from recon.readers._common import numbered_files
 
     files = numbered_files(source, IMAGE_SUFFIXES)
-    if not files:
-        raise ReconError(f"{source}: no images (.jpg/.png) and not a known scan format (see `recon formats`)")
-    shape = _folder_shape(source, files)
-    turned = sum(rio.image_size(f) == shape[::-1] != shape for f in files)
+    sizes = [rio.image_size(f) for f in files]
+    shape = _folder_shape(source, sizes)
+    turned = sum(size == shape[::-1] != shape for size in sizes)
     focals = [f for f in map(rio.read_exif_focal_35mm, files) if f is not None]
     camera = camera_from_exif(focals, shape)
     return {"path": str(source), "kind": "photos", "frames": len(files), "size": list(shape),
@@ -247,7 +246,7 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
     from recon.readers._common import numbered_files
 
     files = numbered_files(folder, IMAGE_SUFFIXES)[:: config.stride][: config.max_frames]
-    shape = _folder_shape(folder, files)
+    shape = _folder_shape(folder, [rio.image_size(f) for f in files])
     frames, focals, turned = [], [], []
     for i, f in enumerate(files):
         try:  # through rio, so a broken file is one warning line, never libpng's own
@@ -268,7 +267,7 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
         if focal is not None:
             focals.append(focal)
     if not frames:
-        raise ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format")
+        raise _no_images(folder)
     if turned:
         landscape = shape[0] >= shape[1]
         log.warning("ingest: %d of %d photos are %s (%s); they are turned a quarter to the folder's %s orientation, "
@@ -284,13 +283,18 @@ def _ingest_image_folder(folder: Path, out_dir: Path, config: IngestConfig) -> I
                         camera_source="exif" if camera is not None else None, turned=turned)
 
 
-def _folder_shape(folder: Path, files: list[Path]) -> tuple[int, int]:
-    """(width, height) of the folder's photos in the orientation most of them have (landscape on a tie)."""
-    sizes = [s for s in map(rio.image_size, files) if s is not None]
+def _folder_shape(folder: Path, sizes: list[tuple[int, int] | None]) -> tuple[int, int]:
+    """(width, height) of the folder's photos (`sizes`: each one's, None when unreadable) in the orientation
+    most of them have (landscape on a tie)."""
+    sizes = [s for s in sizes if s is not None]
     if not sizes:
-        raise ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format")
+        raise _no_images(folder)
     landscape = sum(w >= h for w, h in sizes) * 2 >= len(sizes)
     return next(s for s in sizes if (s[0] >= s[1]) == landscape)
+
+
+def _no_images(folder: Path) -> ReconError:
+    return ReconError(f"{folder}: no readable images (.jpg/.png) and not a known scan format (see `recon formats`)")
 
 
 def _ingest_scan(path: Path, fmt: str, out_dir: Path, config: IngestConfig) -> IngestResult:

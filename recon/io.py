@@ -101,6 +101,10 @@ def captured_stderr() -> Iterator[list[str]]:
         os.close(saved)
 
 
+EXIF_ORIENTATION_TAG = 0x0112
+EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405  # EXIF's sub-IFD and its FocalLengthIn35mmFilm tag
+
+
 def write_image(path: str | os.PathLike, rgb: np.ndarray, jpeg_quality: int = 95,
                 focal_35mm: int | None = None) -> None:
     """Write a uint8 RGB image atomically (format from the suffix); a JPEG with `focal_35mm` carries it as
@@ -135,10 +139,6 @@ def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
     except (OSError, UnidentifiedImageError):
         return None
     return (height, width) if turned else (width, height)
-
-
-EXIF_ORIENTATION_TAG = 0x0112
-EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405  # EXIF's sub-IFD and its FocalLengthIn35mmFilm tag
 
 
 def read_exif_focal_35mm(path: str | os.PathLike) -> float | None:

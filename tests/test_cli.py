@@ -76,7 +76,7 @@ def test_info_describes_a_video_and_a_photo_folder(tmp_path, capsys):
         "photos", 4, [40, 30], 3, 1)
     assert info["focal_px"] == pytest.approx(26 / np.hypot(36, 24) * 50, abs=0.01)
     (tmp_path / "empty").mkdir()
-    one_line_error(recon("info", str(tmp_path / "empty")), "no images")
+    one_line_error(recon("info", str(tmp_path / "empty")), "no readable images")
 
 
 def test_eval_depth_and_poses(scan_dir, tmp_path, capsys):
