@@ -78,6 +78,9 @@ def add_sfm(parser) -> None:
     g.add_argument("--no-motion-check", action="store_true",
                    help="videos: keep a block of frames posed away from the path around it (by default such "
                         "frames, a repeating texture matched one repeat away, are left unposed)")
+    g.add_argument("--no-placement-check", action="store_true",
+                   help="photo folders: keep a photo that none of its matched pairs' own geometry agrees with (by "
+                        "default such photos, a wall matched to a look-alike elsewhere, are left unposed)")
     c = parser.add_argument_group("SfM scale (default: normalised so the median scene depth is --target-depth)")
     x = c.add_mutually_exclusive_group()
     x.add_argument("--scale", type=float, default=None, metavar="FACTOR", help="metres per SfM unit")
@@ -259,7 +262,8 @@ def poses_config(args):
         sfm=SfMConfig(mapper=args.mapper, fallback=not args.no_fallback, camera_model=args.camera_model,
                       matcher=args.matcher, deterministic=not args.parallel_mapping,
                       max_num_features=args.features, sequential_overlap=args.overlap,
-                      loop_detection=not args.no_loop_detection, motion_check=not args.no_motion_check).validate(),
+                      loop_detection=not args.no_loop_detection, motion_check=not args.no_motion_check,
+                      placement_check=not args.no_placement_check).validate(),
         scale=ScaleConfig(factor=args.scale, known_distance=known, target_median_depth=args.target_depth))
 
 

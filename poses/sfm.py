@@ -27,7 +27,8 @@ the far-apart frames that look alike (`loop_detection`, poses/retrieval.py: revi
 When a mapping registers fewer than `retry_below` of the frames, what a careful COLMAP user
 would try runs next (`mapping_plan`): the other mapper, a looser initial pair, the other
 camera model, all-pairs matching; the largest model wins (the first on a tie). In a video, a block
-of frames posed away from the path around it is left unposed (`drop_displaced_blocks`). The kept model
+of frames posed away from the path around it is left unposed (`drop_displaced_blocks`); in a photo
+collection, a photo that none of its matched pairs' own geometry agrees with (`drop_misplaced_photos`). The kept model
 becomes a canonical scan with `metadata.metric_scale = False`; distortion, when kept, stays on
 the scan, so saving it writes undistorted pinhole images (same K).
 
@@ -48,6 +49,7 @@ import numpy as np
 
 from poses.ingest import IngestConfig, ingest
 from poses.motion import displaced_blocks
+from poses.placement import MIN_INLIERS, misplaced, pair_relative_pose, pose_agrees
 from poses.scale import ScaleConfig, resolve_scale
 from recon import io as rio
 from recon.errors import ReconError
@@ -84,6 +86,7 @@ class SfMConfig:
     num_threads: int = -1  # extraction (-1: all cores; its result does not depend on it), and the rest unless deterministic
     deterministic: bool = True  # matching and mappers on one thread: identical poses every run (docs/poses.md: cost)
     motion_check: bool = True  # videos: leave unposed a block of frames posed away from the path (poses/motion.py)
+    placement_check: bool = True  # photos: leave unposed a photo its own pairs disagree with (poses/placement.py)
     seed: int = 0  # every RANSAC and mapper draw
 
     def validate(self) -> "SfMConfig":
@@ -130,7 +133,8 @@ class SfMResult:
     matcher: str = ""  # "sequential" or "exhaustive" (the first matching)
     loops: dict = field(default_factory=dict)  # loop detection: candidate and verified pairs, seconds
     distortion: dict = field(default_factory=dict)  # the distortion test: errors, gain, kept
-    displaced: list[str] = field(default_factory=list)  # registered away from the video's path, left unposed
+    displaced: list[str] = field(default_factory=list)  # posed where the video's path or the photo's pairs say it
+    # is not, left unposed
 
 
 def _pycolmap():
@@ -417,7 +421,10 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     distortion = {}
     if config.camera_model == "auto" and not attempt.distortion:
         rec, distortion = distortion_test(rec, config, timings)
-    displaced = drop_displaced_blocks(rec, image_names) if ordered and config.motion_check else []
+    if ordered:
+        displaced = drop_displaced_blocks(rec, image_names) if config.motion_check else []
+    else:
+        displaced = drop_misplaced_photos(rec, photo_pairs(rec, database_path)) if config.placement_check else []
     if distortion.get("kept") or displaced:
         rec.write(str(model_dir))
     timings["sfm_total"] = time.perf_counter() - t_start
@@ -449,6 +456,47 @@ def drop_displaced_blocks(rec, image_names: list[str]) -> list[str]:
     if names:
         log.warning("sfm: %d frames were posed away from the path of the frames around them (a repeating texture "
                     "matched one repeat away?) and are left out: %s", len(names),
+                    ", ".join(names[:10]) + (" ..." if len(names) > 10 else ""))
+    return names
+
+
+def photo_pairs(rec, database_path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """The verified pairs of posed images with at least MIN_INLIERS inliers, as (name a, name b, (N, 2) pixel
+    positions in a, (N, 2) in b) of their inlier matches, in COLMAP's pixel convention."""
+    pycolmap = _pycolmap()
+    posed = {im.image_id: im.name for im in rec.images.values() if im.has_pose}
+    db = pycolmap.Database.open(database_path)
+    try:
+        keypoints = {i: np.asarray(db.read_keypoints(i))[:, :2] for i in posed}
+    finally:
+        db.close()
+    pairs = []
+    for a, b, geometry in two_view_geometries(database_path):
+        matches = np.asarray(geometry.inlier_matches)
+        if a in posed and b in posed and len(matches) >= MIN_INLIERS:
+            pairs.append((posed[a], posed[b], keypoints[a][matches[:, 0]], keypoints[b][matches[:, 1]]))
+    return pairs
+
+
+def drop_misplaced_photos(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[str]:
+    """Unpose the photos whose verified pairs' own geometry disagrees with where the model put them
+    (poses/placement.py); `pairs` as photo_pairs gives them. Returns the names left unposed, with one warning."""
+    images = {im.name: im for im in rec.images.values() if im.has_pose}
+    cam = next(iter(rec.cameras.values()))
+    threshold = 1.0 / cam.mean_focal_length()  # one pixel
+    verdicts = []
+    for a, b, pixels_a, pixels_b in pairs:
+        pair = pair_relative_pose(np.asarray(cam.cam_from_img(pixels_a)), np.asarray(cam.cam_from_img(pixels_b)),
+                                  threshold)
+        b_from_a = np.asarray((_cam_from_world(images[b]) * _cam_from_world(images[a]).inverse()).matrix())
+        model = (b_from_a[:, :3], b_from_a[:, 3])
+        verdicts.append((a, b, len(pixels_a), pair is not None and pose_agrees(model, pair)))
+    names = misplaced(verdicts)
+    for name in names:
+        rec.deregister_frame(images[name].frame_id)
+    if names:
+        log.warning("sfm: left out %d photo%s posed where none of its matched pairs puts it (a repeating texture or "
+                    "a bare wall matched elsewhere?): %s", len(names), "s" * (len(names) > 1),
                     ", ".join(names[:10]) + (" ..." if len(names) > 10 else ""))
     return names
 
