@@ -81,6 +81,9 @@ def add_sfm(parser) -> None:
     g.add_argument("--no-placement-check", action="store_true",
                    help="photo folders: keep a photo that none of its matched pairs' own geometry agrees with (by "
                         "default such photos, a wall matched to a look-alike elsewhere, are left unposed)")
+    g.add_argument("--no-pair-pruning", action="store_true",
+                   help="photo folders: map once (by default SfM maps again without the matched pairs far off the "
+                        "first model, repeated textures matched across walls, and keeps the model more pairs agree with)")
     c = parser.add_argument_group("SfM scale (default: normalised so the median scene depth is --target-depth)")
     x = c.add_mutually_exclusive_group()
     x.add_argument("--scale", type=float, default=None, metavar="FACTOR", help="metres per SfM unit")
@@ -263,7 +266,7 @@ def poses_config(args):
                       matcher=args.matcher, deterministic=not args.parallel_mapping,
                       max_num_features=args.features, sequential_overlap=args.overlap,
                       loop_detection=not args.no_loop_detection, motion_check=not args.no_motion_check,
-                      placement_check=not args.no_placement_check).validate(),
+                      placement_check=not args.no_placement_check, pair_pruning=not args.no_pair_pruning).validate(),
         scale=ScaleConfig(factor=args.scale, known_distance=known, target_median_depth=args.target_depth))
 
 

@@ -171,6 +171,12 @@ def sfm_section(scan) -> dict | None:
             ("observations per image", sfm.get("mean_observations_per_image"), "points each image sees"),
             ("camera", (sfm.get("camera") or {}).get("model"), "the shared camera model SfM refined"),
             ("parallax", sfm.get("parallax"), "median homography parallax of the matched pairs")]
+    pruning = sfm.get("pair_pruning") or {}
+    if pruning.get("pruned"):
+        rows.append(("pairs far off the model", f"{pruning['pruned']} of {pruning['pairs']}; kept the "
+                     f"{'second mapping, without them' if pruning['kept'] == 'pruned' else 'first mapping'}",
+                     "photos: verified pairs whose own geometry is far off the first model (repeated textures); "
+                     "SfM mapped again without them and kept the model more pairs agree with"))
     return {"rows": [{"label": k, "value": "n/a" if v is None else v, "help": h} for k, v, h in rows],
             "timings": [(k, _seconds(v)) for k, v in (sfm.get("timings_s") or {}).items()],
             "unregistered": ", ".join(n for n in sfm.get("unregistered") or [] if n not in displaced),

@@ -40,22 +40,21 @@ def sampson_px(x_a: np.ndarray, x_b: np.ndarray, e: np.ndarray, focal: float) ->
 
 def pair_measures(rec, database_path: Path) -> dict[str, dict[str, float]]:
     """Per posed image: inliers over its pairs, the agreeing-pair share and the explained-match share."""
-    from poses.placement import pair_relative_pose, pose_agrees
-    from poses.sfm import _cam_from_world, photo_pairs
+    from poses.placement import agrees
+    from poses.sfm import _cam_from_world, pair_residuals, photo_pairs
 
     cam = next(iter(rec.cameras.values()))
     images = {im.name: im for im in rec.images.values() if im.has_pose}
+    pairs = photo_pairs(rec, database_path)
     sums: dict[str, np.ndarray] = {}
-    for a, b, pixels_a, pixels_b in photo_pairs(rec, database_path):
-        x_a, x_b = np.asarray(cam.cam_from_img(pixels_a)), np.asarray(cam.cam_from_img(pixels_b))
+    for (a, b, pixels_a, pixels_b), (_, _, n, rotation, direction) in zip(pairs, pair_residuals(rec, pairs)):
         m = np.asarray((_cam_from_world(images[b]) * _cam_from_world(images[a]).inverse()).matrix())
         t = m[:, 3]
         essential = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ m[:, :3]
-        explained = int((sampson_px(x_a, x_b, essential, cam.mean_focal_length()) < 2.0).sum())
-        pair = pair_relative_pose(x_a, x_b, 1.0 / cam.mean_focal_length())
-        agrees = pair is not None and pose_agrees((m[:, :3], t), pair)
+        explained = int((sampson_px(np.asarray(cam.cam_from_img(pixels_a)), np.asarray(cam.cam_from_img(pixels_b)),
+                                    essential, cam.mean_focal_length()) < 2.0).sum())
         for name in (a, b):
-            sums[name] = sums.get(name, np.zeros(3)) + [len(x_a), len(x_a) * agrees, explained]
+            sums[name] = sums.get(name, np.zeros(3)) + [n, n * agrees(rotation, direction), explained]
     return {n: {"inliers": int(s[0]), "agreeing_share": s[1] / s[0], "explained_share": s[2] / s[0]}
             for n, s in sums.items()}
 
@@ -71,7 +70,7 @@ def analyse(folder: Path, run_dir: Path, reuse: bool) -> list[dict]:
     if reuse and (run_dir / "scan.json").exists():
         scan = open_scan(run_dir)
     else:
-        config = PosesConfig(ingest=IngestConfig(blur_ratio=0.0), sfm=SfMConfig(placement_check=False))
+        config = PosesConfig(ingest=IngestConfig(blur_ratio=0.0), sfm=SfMConfig(placement_check=False, pair_pruning=False))
         scan, _ = estimate_poses(folder / PHOTOS, run_dir, config)
     gt = {Path(f.name).stem: f.camera_to_world for f in open_scan(folder / GROUND_TRUTH).frames}
     sfm = json.loads((run_dir / "poses_report.json").read_text())["sfm"]

@@ -7,6 +7,12 @@ verified pair of photos has its own two-view geometry, the relative rotation and
 its inlier matches give. A well-placed photo agrees with at least some of its pairs (on the rendered
 rooms 16-80 % of its inliers lie in agreeing pairs; pairs matched across repeated textures disagree),
 a misplaced one with none, so `misplaced` picks out the photos whose agreeing share is near zero.
+
+The same residuals find the pairs themselves that are wrong: on the rendered collections a third to two
+thirds of the verified pairs join views of different walls through a repeated texture (most of those with
+15-30 inliers), and where enough of them pull together the incremental mapper bends the whole model.
+`grossly_off` marks the pairs far off the first model; SfM maps again without them and keeps the model
+that more of all the pairs' inliers agree with (poses/sfm.py, `map_without_gross_pairs`).
 """
 from __future__ import annotations
 
@@ -16,6 +22,8 @@ ROTATION_TOLERANCE_DEG = 5.0  # the pair's rotation and the model's differ by le
 DIRECTION_TOLERANCE_DEG = 15.0  # and so do their directions of travel
 MIN_INLIERS = 15  # pairs with fewer inlier matches give no usable geometry and are not counted
 MIN_AGREEING_SHARE = 0.05  # of a photo's inliers in agreeing pairs; below it the photo is misplaced
+GROSS_ROTATION_DEG = 30.0  # a pair this far off the model in rotation (or GROSS_DIRECTION_DEG in travel
+GROSS_DIRECTION_DEG = 60.0  # direction) matched something else than the same surface: pruned before a second mapping
 
 
 def rotation_angle_deg(r: np.ndarray) -> float:
@@ -53,11 +61,21 @@ def pair_relative_pose(points_a: np.ndarray, points_b: np.ndarray, threshold: fl
     return r, t.ravel()
 
 
-def pose_agrees(model: tuple[np.ndarray, np.ndarray], pair: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether the model's relative pose (R, t) of b from a matches the pair's own within the tolerances."""
+def pose_residuals(model: tuple[np.ndarray, np.ndarray], pair: tuple[np.ndarray, np.ndarray]) -> tuple[float, float]:
+    """(rotation, travel direction) differences in degrees between the model's relative pose (R, t) of b from a and
+    the pair's own."""
     (r_model, t_model), (r_pair, t_pair) = model, pair
-    return (rotation_angle_deg(r_model.T @ r_pair) < ROTATION_TOLERANCE_DEG
-            and direction_angle_deg(t_model, t_pair) < DIRECTION_TOLERANCE_DEG)
+    return rotation_angle_deg(r_model.T @ r_pair), direction_angle_deg(t_model, t_pair)
+
+
+def agrees(rotation_deg: float, direction_deg: float) -> bool:
+    """Whether a pair with these residuals agrees with the model."""
+    return rotation_deg < ROTATION_TOLERANCE_DEG and direction_deg < DIRECTION_TOLERANCE_DEG
+
+
+def grossly_off(rotation_deg: float, direction_deg: float) -> bool:
+    """Whether a pair with these residuals is too far off the model to be a noisy estimate of the same poses."""
+    return rotation_deg > GROSS_ROTATION_DEG or direction_deg > GROSS_DIRECTION_DEG
 
 
 def misplaced(pairs: list[tuple[str, str, int, bool]], min_share: float = MIN_AGREEING_SHARE) -> list[str]:

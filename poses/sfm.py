@@ -28,7 +28,8 @@ When a mapping registers fewer than `retry_below` of the frames, what a careful 
 would try runs next (`mapping_plan`): the other mapper, a looser initial pair, the other
 camera model, all-pairs matching; the largest model wins (the first on a tie). In a video, a block
 of frames posed away from the path around it is left unposed (`drop_displaced_blocks`); in a photo
-collection, a photo that none of its matched pairs' own geometry agrees with (`drop_misplaced_photos`). The kept model
+collection, a photo that none of its matched pairs' own geometry agrees with (`drop_misplaced_photos`), and
+the collection is mapped again without the pairs far off the first model (`map_without_gross_pairs`). The kept model
 becomes a canonical scan with `metadata.metric_scale = False`; distortion, when kept, stays on
 the scan, so saving it writes undistorted pinhole images (same K).
 
@@ -41,15 +42,17 @@ from __future__ import annotations
 import logging
 import os
 import time
+import shutil
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 from pathlib import Path
 
 import numpy as np
 
 from poses.ingest import IngestConfig, ingest
 from poses.motion import displaced_blocks
-from poses.placement import MIN_INLIERS, misplaced, pair_relative_pose, pose_agrees
+from poses.placement import MIN_INLIERS, agrees, grossly_off, misplaced, pair_relative_pose, pose_residuals
 from poses.scale import ScaleConfig, resolve_scale
 from recon import io as rio
 from recon.errors import ReconError
@@ -87,6 +90,7 @@ class SfMConfig:
     deterministic: bool = True  # matching and mappers on one thread: identical poses every run (docs/poses.md: cost)
     motion_check: bool = True  # videos: leave unposed a block of frames posed away from the path (poses/motion.py)
     placement_check: bool = True  # photos: leave unposed a photo its own pairs disagree with (poses/placement.py)
+    pair_pruning: bool = True  # photos: map again without the pairs far off the first model, keep the better model
     seed: int = 0  # every RANSAC and mapper draw
 
     def validate(self) -> "SfMConfig":
@@ -135,6 +139,7 @@ class SfMResult:
     distortion: dict = field(default_factory=dict)  # the distortion test: errors, gain, kept
     displaced: list[str] = field(default_factory=list)  # posed where the video's path or the photo's pairs say it
     # is not, left unposed
+    pruning: dict = field(default_factory=dict)  # photos: the second mapping without the pairs far off the first
 
 
 def _pycolmap():
@@ -421,11 +426,15 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     distortion = {}
     if config.camera_model == "auto" and not attempt.distortion:
         rec, distortion = distortion_test(rec, config, timings)
+    pruning: dict = {}
     if ordered:
         displaced = drop_displaced_blocks(rec, image_names) if config.motion_check else []
     else:
-        displaced = drop_misplaced_photos(rec, photo_pairs(rec, database_path)) if config.placement_check else []
-    if distortion.get("kept") or displaced:
+        kept = KeptModel(rec, model_dir, distortion, _drop_misplaced(rec, database_path, config))
+        if config.pair_pruning:
+            kept, pruning = map_without_gross_pairs(kept, database_path, image_dir, work_dir, attempt, config, timings)
+        rec, model_dir, distortion, displaced = kept
+    if distortion.get("kept") or displaced or pruning.get("kept") == "pruned":
         rec.write(str(model_dir))
     timings["sfm_total"] = time.perf_counter() - t_start
     registered = sorted(im.name for im in rec.images.values() if im.has_pose)
@@ -439,7 +448,7 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
                     ", ".join(missed[:10]) + (" ..." if len(missed) > 10 else ""))
     return SfMResult(rec, image_dir, attempt.mapper, registered, unregistered, timings, work_dir, database_path,
                      model_dir, attempts, camera_report, parallax, matcher, loops=loops, distortion=distortion,
-                     displaced=displaced)
+                     displaced=displaced, pruning=pruning)
 
 
 def drop_displaced_blocks(rec, image_names: list[str]) -> list[str]:
@@ -478,27 +487,111 @@ def photo_pairs(rec, database_path: Path) -> list[tuple[str, str, np.ndarray, np
     return pairs
 
 
-def drop_misplaced_photos(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[str]:
-    """Unpose the photos whose verified pairs' own geometry disagrees with where the model put them
-    (poses/placement.py); `pairs` as photo_pairs gives them. Returns the names left unposed, with one warning."""
+def pair_residuals(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[tuple[str, str, int, float, float]]:
+    """(name a, name b, inliers, rotation and travel-direction residuals in degrees) for each of `pairs` (as
+    photo_pairs gives them): how far the pair's own relative pose, from its inliers through the model's camera,
+    is from the model's (poses/placement.py); 180, 180 when the inliers give no pose."""
     images = {im.name: im for im in rec.images.values() if im.has_pose}
     cam = next(iter(rec.cameras.values()))
     threshold = 1.0 / cam.mean_focal_length()  # one pixel
-    verdicts = []
+    residuals = []
     for a, b, pixels_a, pixels_b in pairs:
         pair = pair_relative_pose(np.asarray(cam.cam_from_img(pixels_a)), np.asarray(cam.cam_from_img(pixels_b)),
                                   threshold)
         b_from_a = np.asarray((_cam_from_world(images[b]) * _cam_from_world(images[a]).inverse()).matrix())
-        model = (b_from_a[:, :3], b_from_a[:, 3])
-        verdicts.append((a, b, len(pixels_a), pair is not None and pose_agrees(model, pair)))
-    names = misplaced(verdicts)
+        off = (180.0, 180.0) if pair is None else pose_residuals((b_from_a[:, :3], b_from_a[:, 3]), pair)
+        residuals.append((a, b, len(pixels_a), *off))
+    return residuals
+
+
+def agreeing_inliers(residuals: list[tuple[str, str, int, float, float]]) -> int:
+    """Inliers of the pairs that agree with the model, summed: how much of the matching a model explains."""
+    return sum(n for _, _, n, rotation, direction in residuals if agrees(rotation, direction))
+
+
+def drop_misplaced_photos(rec, residuals: list[tuple[str, str, int, float, float]]) -> list[str]:
+    """Unpose the photos whose verified pairs' own geometry disagrees with where the model put them
+    (poses/placement.py); `residuals` as pair_residuals gives them. Returns the names left unposed, with one warning."""
+    names = misplaced([(a, b, n, agrees(rotation, direction)) for a, b, n, rotation, direction in residuals])
+    frame_ids = {im.name: im.frame_id for im in rec.images.values()}
     for name in names:
-        rec.deregister_frame(images[name].frame_id)
+        rec.deregister_frame(frame_ids[name])
     if names:
         log.warning("sfm: left out %d photo%s posed where none of its matched pairs puts it (a repeating texture or "
                     "a bare wall matched elsewhere?): %s", len(names), "s" * (len(names) > 1),
                     ", ".join(names[:10]) + (" ..." if len(names) > 10 else ""))
     return names
+
+
+class KeptModel(NamedTuple):
+    """A photo collection's model on its way out of SfM."""
+
+    reconstruction: object  # pycolmap.Reconstruction
+    model_dir: Path
+    distortion: dict  # its distortion test ({} when none ran)
+    displaced: list[str]  # photos the placement check left unposed
+
+
+def _drop_misplaced(rec, database_path: Path, config: SfMConfig) -> list[str]:
+    """The placement check on `rec` (when on): the photos it leaves unposed."""
+    if not config.placement_check:
+        return []
+    return drop_misplaced_photos(rec, pair_residuals(rec, photo_pairs(rec, database_path)))
+
+
+def copy_database_without(database_path: Path, out_path: Path, pairs: list[tuple[str, str]]) -> Path:
+    """Copy the COLMAP database to `out_path` without the verified geometries of `pairs` (image names)."""
+    rio.remove_path(out_path)
+    shutil.copyfile(database_path, out_path)
+    db = _pycolmap().Database.open(out_path)
+    try:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        for a, b in pairs:
+            db.delete_two_view_geometry(ids[a], ids[b])
+    finally:
+        db.close()
+    return out_path
+
+
+def map_without_gross_pairs(first: KeptModel, database_path: Path, image_dir: Path, work_dir: Path,
+                            attempt: MappingAttempt, config: SfMConfig, timings: dict[str, float]) -> tuple[KeptModel, dict]:
+    """Map a photo collection again without the verified pairs far off the first model (poses/placement.py:
+    repeated textures matched across walls) and keep whichever model more of all the pairs' inliers agree with.
+
+    `first` has been through the placement check, so a misplaced photo's pairs neither count as far off nor
+    against it. The second mapping runs on a copy of the database (database_pruned.db) with the same attempt,
+    the distortion test when the first had one, and the placement check. Returns the kept model and a report."""
+    t0 = time.perf_counter()
+    residuals = pair_residuals(first.reconstruction, photo_pairs(first.reconstruction, database_path))
+    gross = [(a, b) for a, b, _, rotation, direction in residuals if grossly_off(rotation, direction)]
+    report = {"pairs": len(residuals), "pruned": len(gross), "kept": "first"}
+    if not gross:
+        return first, report
+    pruned_db = copy_database_without(database_path, work_dir / "database_pruned.db", gross)
+    out = work_dir / "sparse" / f"{attempt.label}-pruned"
+    try:
+        models = map_images(pruned_db, image_dir, out, attempt, config, timings)
+    except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
+        log.warning("sfm: mapping without the pairs far off the first model failed: %s", exc)
+        models = {}
+    if not models:
+        return first, report
+    index, rec = _largest_model(models)
+    distortion = first.distortion
+    if distortion:  # the first model went through the distortion test: so does the second
+        rec, distortion = distortion_test(rec, config, timings)
+    second = KeptModel(rec, out / str(index), distortion, _drop_misplaced(rec, database_path, config))
+    first_inliers = agreeing_inliers(residuals)
+    second_inliers = agreeing_inliers(pair_residuals(rec, photo_pairs(rec, database_path)))
+    report.update(agreeing_inliers_first=first_inliers, agreeing_inliers_pruned=second_inliers,
+                  registered_pruned=rec.num_reg_images())
+    timings["pair_pruning"] = time.perf_counter() - t0
+    if second_inliers <= first_inliers:
+        return first, report
+    report["kept"] = "pruned"
+    log.info("sfm: kept the mapping without %d of %d pairs far off the first model (%d against %d agreeing inliers)",
+             len(gross), len(residuals), second_inliers, first_inliers)
+    return second, report
 
 
 def _check_parallax(database_path: Path, image_dir: Path, work_dir: Path, config: SfMConfig, n: int) -> float:
@@ -530,7 +623,7 @@ def _map_until_enough(database_path: Path, image_dir: Path, work_dir: Path, plan
             models = {}
         registered = 0
         if models:
-            index, rec = max(sorted(models.items()), key=lambda kv: kv[1].num_reg_images())
+            index, rec = _largest_model(models)
             registered = rec.num_reg_images()
             if registered > best[0]:
                 best = (registered, attempt, out / str(index), rec)
@@ -539,6 +632,11 @@ def _map_until_enough(database_path: Path, image_dir: Path, work_dir: Path, plan
         if best[0] >= config.retry_below * n:
             break
     return best
+
+
+def _largest_model(models: dict) -> tuple[int, object]:
+    """(index, Reconstruction) of the model with the most registered images; the lowest index wins a tie."""
+    return max(sorted(models.items()), key=lambda kv: kv[1].num_reg_images())
 
 
 def distortion_test(rec, config: SfMConfig, timings: dict[str, float]) -> tuple[object, dict]:
@@ -652,7 +750,7 @@ def scan_from_sfm(result: SfMResult) -> Scan:
     scan.metadata.extra["sfm"] = {
         "mapper": result.mapper, "matcher": result.matcher, "loops": result.loops, "registered": len(result.registered),
         "unregistered": [Path(n).stem for n in result.unregistered], "attempts": result.attempts,
-        "displaced": [Path(n).stem for n in result.displaced],
+        "displaced": [Path(n).stem for n in result.displaced], "pair_pruning": result.pruning,
         "timings_s": {k: round(v, 2) for k, v in result.timings.items()}, "camera": result.camera,
         "distortion_test": result.distortion, "parallax": round(result.parallax, 4),
         "colmap_dir": str(result.work_dir), "model_dir": str(result.model_dir), **model_statistics(result.reconstruction)}

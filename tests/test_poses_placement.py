@@ -4,8 +4,9 @@ import dataclasses
 import numpy as np
 import pycolmap
 
-from poses.placement import misplaced, pair_relative_pose, pose_agrees, rotation_angle_deg, direction_angle_deg
-from poses.sfm import drop_misplaced_photos
+from poses.placement import (agrees, direction_angle_deg, grossly_off, misplaced, pair_relative_pose, pose_residuals,
+                             rotation_angle_deg)
+from poses.sfm import drop_misplaced_photos, pair_residuals
 from recon.geometry import backproject_pixels, invert_pose, project, transform_points
 from recon.writers import PIXEL_CENTRE, write_colmap_text
 from tests.fixtures.box_room import box_room_scan
@@ -37,10 +38,12 @@ def test_a_pairs_relative_pose_comes_from_its_matches():
     r, t = pair_relative_pose(to_camera(pixels_a), to_camera(pixels_b), 1.0 / scan.intrinsics.fx)
     r_true, t_true = _relative(scan, 0, 1)
     assert rotation_angle_deg(r.T @ r_true) < 0.5 and direction_angle_deg(t, t_true) < 2.0
-    assert pose_agrees((r_true, t_true), (r, t))
-    assert not pose_agrees((r_true, -t_true), (r, t))  # the opposite direction of travel
+    assert agrees(*pose_residuals((r_true, t_true), (r, t)))
+    backwards = pose_residuals((r_true, -t_true), (r, t))  # the opposite direction of travel
+    assert not agrees(*backwards) and grossly_off(*backwards)
     turned = np.array([[np.cos(0.2), 0, np.sin(0.2)], [0, 1, 0], [-np.sin(0.2), 0, np.cos(0.2)]])
-    assert not pose_agrees((turned @ r_true, t_true), (r, t))  # 11 degrees of rotation
+    residuals = pose_residuals((turned @ r_true, t_true), (r, t))  # 11 degrees of rotation: off, but not grossly
+    assert not agrees(*residuals) and not grossly_off(*residuals)
 
 
 def test_a_photo_none_of_whose_pairs_agree_is_misplaced():
@@ -70,7 +73,7 @@ def test_sfm_leaves_a_misplaced_photo_unposed(tmp_path):
     write_colmap_text(dataclasses.replace(scan, frames=frames), tmp_path, names)
     rec = pycolmap.Reconstruction(str(tmp_path))
     assert sum(names[4] in (a, b) for a, b, _, _ in pairs) >= 3  # photo 4 has pairs to disagree with
-    assert drop_misplaced_photos(rec, pairs) == [names[4]]
+    assert drop_misplaced_photos(rec, pair_residuals(rec, pairs)) == [names[4]]
     assert sorted(im.name for im in rec.images.values() if im.has_pose) == names[:4] + names[5:]
 
 
@@ -81,5 +84,5 @@ def test_sfm_keeps_every_photo_of_a_consistent_model(tmp_path):
              for a in range(N_PHOTOS) for b in range(a + 1, N_PHOTOS)]
     write_colmap_text(scan, tmp_path, names)
     rec = pycolmap.Reconstruction(str(tmp_path))
-    assert drop_misplaced_photos(rec, [p for p in pairs if len(p[2]) >= 15]) == []
+    assert drop_misplaced_photos(rec, pair_residuals(rec, [p for p in pairs if len(p[2]) >= 15])) == []
     assert len([im for im in rec.images.values() if im.has_pose]) == N_PHOTOS

@@ -106,3 +106,13 @@ def test_sfm_section_tells_displaced_frames_from_unregistered_ones():
     section = sfm_section(scan)
     assert section["unregistered"] == "f3" and section["displaced"] == "f7, f8"
     assert dict((r["label"], r["value"]) for r in section["rows"])["frames posed"] == "5 of 5"
+
+
+def test_sfm_section_says_which_mapping_of_a_photo_folder_was_kept():
+    scan = box_room_scan(n_frames=4)
+    scan.metadata.extra["sfm"] = {"mapper": "incremental", "registered": 4, "unregistered": [],
+                                  "pair_pruning": {"pairs": 905, "pruned": 467, "kept": "pruned"}}
+    rows = dict((r["label"], r["value"]) for r in sfm_section(scan)["rows"])
+    assert rows["pairs far off the model"] == "467 of 905; kept the second mapping, without them"
+    scan.metadata.extra["sfm"]["pair_pruning"] = {"pairs": 343, "pruned": 0, "kept": "first"}
+    assert "pairs far off the model" not in [r["label"] for r in sfm_section(scan)["rows"]]
