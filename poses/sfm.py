@@ -41,12 +41,12 @@ from __future__ import annotations
 
 import logging
 import os
-import time
 import shutil
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import NamedTuple
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
