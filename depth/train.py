@@ -33,7 +33,7 @@ from recon.errors import ReconError
 from .checkpoint import load_checkpoint, load_weights, save_checkpoint
 from .config import ESTConfig, get_config
 from .data import ShapeBatches, resize_clip
-from .device import describe_device, resolve_device
+from .device import computes_bf16, describe_device, resolve_device
 from .loss import LOSSES, multi_stage_loss
 from .model import ESTNet
 
@@ -66,7 +66,8 @@ class TrainOptions:
     val_every: int = 1000  # steps; validation also runs at the end of every epoch
     checkpoint_every: int = 1000  # steps; a checkpoint is also written at the end of every epoch
     log_every: int = 50
-    amp: str | None = None  # mixed precision: "bf16" autocast, or "fp16" autocast with a gradient scaler
+    amp: str | None = None  # mixed precision: "bf16" autocast, "fp16" autocast with a gradient scaler, or
+    # "auto": bf16 where the device computes it in hardware (depth.device.computes_bf16), else none
     compile: bool = False  # torch.compile the model
     device: str = "auto"
     num_workers: int = 0
@@ -76,8 +77,8 @@ class TrainOptions:
     fp16_export: bool = False  # store the final `model.pt` weights as float16
 
     def validate(self) -> "TrainOptions":
-        if self.amp not in (None, *AMP_DTYPES):
-            raise ReconError(f"unknown mixed precision {self.amp!r} (bf16 or fp16)")
+        if self.amp not in (None, "auto", *AMP_DTYPES):
+            raise ReconError(f"unknown mixed precision {self.amp!r} (auto, bf16 or fp16)")
         if self.schedule not in SCHEDULES:
             raise ReconError(f"unknown lr schedule {self.schedule!r} ({' or '.join(SCHEDULES)})")
         if self.loss not in LOSSES:
@@ -160,6 +161,9 @@ class Trainer:
         self.opts, self.out_dir, self.cfg, self.describe = opts.validate(), out_dir, cfg, describe
         self.rank, self.world, self.created_group = _distributed()
         self.device = resolve_device(opts.device)
+        if opts.amp == "auto":  # the options in checkpoint metadata say what ran
+            self.opts = replace(self.opts, amp="bf16" if computes_bf16(self.device) else None)
+            log.info("precision: %s (auto)", self.opts.amp or "fp32")
         if self.world > 1 and self.device.type == "cuda":
             self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
             torch.cuda.set_device(self.device)
@@ -170,7 +174,7 @@ class Trainer:
         self.model.to(self.device).train()
         self.optimizer = torch.optim.Adam(parameter_groups(self.model, opts.lr, opts.encoder_lr_scale),
                                           lr=opts.lr, betas=tuple(opts.betas), weight_decay=opts.weight_decay)
-        self.scaler = torch.amp.GradScaler(self.device.type, enabled=opts.amp == "fp16")
+        self.scaler = torch.amp.GradScaler(self.device.type, enabled=self.opts.amp == "fp16")
         self.step = self.epoch = self.warm_from = 0  # warm_from: the step this schedule began at
         self.trained_s = 0.0  # all training time of these weights, earlier runs included
         self.schedule_s = 0.0  # training time of this schedule before this process started

@@ -66,6 +66,22 @@ def test_recon_bench_depth_json(capsys):
     assert 15 < result["gmacs"] < 20 and result["s_per_frame"] > 0 and result["frames"] == 1
 
 
+def test_recon_bench_train_times_the_precision_training_picks(capsys):
+    import torch
+
+    from depth.device import computes_bf16
+
+    assert main(["bench", "train", "--steps", "1", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    native = computes_bf16(torch.device("cpu"))
+    assert result["config"] == "compact" and result["computes_bf16"] == native
+    assert result["amp_auto_picks"] == ("bf16" if native else "fp32") and 0 < result["rows"]["fp32"]["s_per_step"] < 120
+    bf16 = result["rows"]["bf16"]
+    assert (bf16["s_per_step"] > 0) if native else ("emulated" in bf16["note"])
+    assert main(["bench", "train", "--steps", "0"]) == 2
+    assert "--steps" in capsys.readouterr().err
+
+
 def test_recon_train_takes_the_config_of_the_weights_it_starts_from(scan_dir, tmp_path, capsys):
     # weights trained under a changed config (here `tiny` with the scale-keeping RefineNet, no named config)
     # train on without restating it; a --config that contradicts them is refused

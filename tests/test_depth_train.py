@@ -200,6 +200,23 @@ def test_bf16_autocast_gives_the_fp32_loss_and_trains(tmp_path):
     assert load_checkpoint(stepped.checkpoint).training["step"] == 1
 
 
+def test_auto_precision_is_bf16_where_the_hardware_computes_it(tmp_path):
+    """`amp="auto"` (the CLI default) trains in bf16 only on a device with bf16 arithmetic, and the
+    checkpoint records what ran; on Linux the CPU's answer agrees with the flags the kernel lists."""
+    from pathlib import Path
+
+    from depth.device import computes_bf16
+
+    native = computes_bf16(torch.device("cpu"))
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        flags = set(next(line for line in cpuinfo.read_text().splitlines() if line.startswith("flags")).split())
+        assert native == bool(flags & {"amx_bf16", "avx512_bf16"})
+    data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)
+    auto = train(data, tmp_path / "auto", _quiet(max_steps=1, lr=1e-3, amp="auto"), model_config=TINY)
+    assert load_checkpoint(auto.checkpoint).metadata["options"]["amp"] == ("bf16" if native else None)
+
+
 @pytest.mark.slow
 def test_bf16_training_learns(tmp_path):
     data = ClipDataset([plane_scan(6, 96, 64, step=0.08)], CLIP)

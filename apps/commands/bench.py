@@ -12,6 +12,7 @@ BENCHMARKS = {
     "synth": ("apps.bench.synth", "synthetic room rendering frames/s against bare Open3D ray casting"),
     "pipeline": ("apps.bench.pipeline", "end-to-end time and peak memory per stage (demo, 7-Scenes x100)"),
     "depth": ("apps.bench.depth", "EST depth network: params, MACs, peak memory, s/frame (ESTM) against plane sweep"),
+    "train": ("apps.bench.train", "depth network training: seconds per step, fp32 against bf16 autocast"),
     "poses": ("apps.bench.poses", "SfM repeatability and completeness: rendered rooms, a photo folder, 7-Scenes"),
     "cli": ("apps.bench.cli", "start-up time of `recon --help` / `--version` against a bare Python start"),
 }

@@ -92,8 +92,9 @@ def add_arguments(p) -> None:
                        help="ResNet weights for the ContextNet encoder (resnet configs)")
     files.add_argument("--fp16-export", action="store_true", help="store model.pt weights as float16")
     run_ = p.add_argument_group("hardware")
-    run_.add_argument("--amp", nargs="?", const="bf16", choices=("bf16", "fp16"), default=None,
-                      help="mixed precision: bf16 (default when given), or fp16 with a gradient scaler")
+    run_.add_argument("--amp", nargs="?", const="bf16", choices=("auto", "bf16", "fp16", "off"), default="auto",
+                      help="mixed precision: auto (the default: bf16 where the GPU or CPU computes it in hardware, "
+                           "e.g. AMX, else off), bf16 (when given alone), fp16 with a gradient scaler, or off")
     run_.add_argument("--compile", action="store_true", help="torch.compile the model")
     run_.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     run_.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
@@ -237,9 +238,9 @@ def run(args: argparse.Namespace) -> int:
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
         grad_weight=args.grad_weight,
         low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
-        checkpoint_every=args.checkpoint_every, log_every=args.log_every, amp=args.amp, compile=args.compile,
-        device=args.device, num_workers=args.workers, seed=args.seed, init=args.init, backbone=args.backbone,
-        fp16_export=args.fp16_export)
+        checkpoint_every=args.checkpoint_every, log_every=args.log_every,
+        amp=None if args.amp == "off" else args.amp, compile=args.compile, device=args.device,
+        num_workers=args.workers, seed=args.seed, init=args.init, backbone=args.backbone, fp16_export=args.fp16_export)
     log.info("training %s on %s (%d validation clips)", cfg.name,
              "synthetic rooms" if args.synthetic else f"{len(train_data)} clips", len(val_data) if val_data else 0)
     result = train(train_data, args.out, opts, val_data=val_data, resume=args.resume, model_config=cfg)
