@@ -132,7 +132,8 @@ def add_depth(parser, with_device: bool = False) -> None:
     g.add_argument("--baseline", type=float, default=_default(SourceConfig, "source_baseline"),
                    help="translation a frame's sources should ideally have, in scan units (default %(default)s)")
     g.add_argument("--precision", choices=PRECISIONS, default=_default(DepthOptions, "precision"),
-                   help="network arithmetic; bf16 autocast is faster on GPUs and bf16-capable CPUs (default %(default)s)")
+                   help="network arithmetic: bf16 autocast, fp32, or auto (the default): bf16 where the GPU or CPU "
+                        "computes it in hardware (AMX, AVX512-BF16), else fp32")
     g.add_argument("--compile", action="store_true",
                    help="torch.compile the network: about a minute of compiling, then faster frames (GPU above all)")
     g.add_argument("--mirror-pass", action="store_true",

@@ -26,6 +26,13 @@ def describe_device(device: torch.device) -> str:
     return f"CPU, {torch.get_num_threads()} torch thread(s)"
 
 
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """`auto` -> bf16 where `device` computes it in hardware, else fp32; other names as they are."""
+    if precision != "auto":
+        return precision
+    return "bf16" if computes_bf16(device) else "fp32"
+
+
 def computes_bf16(device: torch.device) -> bool:
     """Whether `device` has bfloat16 arithmetic in hardware: a CUDA GPU that supports it, or a CPU with AMX
     tiles or AVX512-BF16 (where a `compact` training step takes 0.67x the fp32 one, docs/depth.md); a CPU

@@ -30,7 +30,7 @@ from recon.scan import Scan
 
 from .checkpoint import build_model, load_checkpoint
 from .config import get_config
-from .device import resolve_device
+from .device import resolve_device, resolve_precision
 from .model import ESTNet, MemoryEntry, TargetOutput, TargetState
 from .options import (NETWORK_MODES, DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range,
                       stored_size)
@@ -95,7 +95,7 @@ class _Pass:
         self.depth_range = torch.tensor([scan_depth_range(scan, opts.depth_range)], device=device)
         self.features, self.prepare_call, self.finish_call = estimator.network_calls(opts.compile)
         self.normalise = estimator.model.normalise
-        self.bf16 = opts.precision == "bf16"
+        self.bf16 = resolve_precision(opts.precision, device) == "bf16"
         self._cache: collections.OrderedDict[int, tuple[torch.Tensor, torch.Tensor]] = collections.OrderedDict()
         self.capacity = capacity
 

@@ -17,6 +17,7 @@ from recon.io import load_depth_map
 from recon.scan import Scan
 
 from .checkpoint import DEFAULT_WEIGHTS, weights_digest
+from .device import resolve_precision
 from .estimator import DepthEstimator, TemporalMemory
 from .hybrid import refine_frames
 from .options import DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range
@@ -47,6 +48,7 @@ def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple
         estimator = DepthEstimator.from_weights(opts.weights, opts.device, opts.config)
     if opts.memory_size is None:
         opts = replace(opts, memory_size=estimator.config.memory_size)
+    opts = replace(opts, precision=resolve_precision(opts.precision, estimator.device))  # depth.json says which ran
     if opts.depth_range is None and estimator.trained_depth_range is not None:
         opts = replace(opts, depth_range=estimator.trained_depth_range)
     return opts, estimator

@@ -48,6 +48,7 @@ class TableOptions:
     eval_range: tuple[float, float] = (1e-3, 10.0)
     size: tuple[int, int] = (320, 256)
     device: str = "cpu"
+    precision: str = "fp32"  # every stored figure and the shipping rules' rows are fp32 (bf16 moves Abs Rel ~0.003)
     mesh: bool = True
     mesh_row: str = "estm_m2"
     mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror")  # also fused and scored, when run
@@ -67,7 +68,7 @@ def row_options(row: str, opts: TableOptions):
     from depth.options import DepthOptions
 
     rng = tuple(opts.depth_range) if opts.depth_range else trained_depth_range(opts.weights)
-    common = dict(depth_range=rng, device=opts.device)
+    common = dict(depth_range=rng, device=opts.device, precision=opts.precision)
     if row == "planesweep":
         return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):

@@ -76,6 +76,9 @@ def main(argv=None) -> int:
     p.add_argument("--hybrid", action="store_true", help="also run every checkpoint's hybrid mode (ESTM refined by a narrow sweep)")
     p.add_argument("--mirror", action="store_true", help="also run ESTM with the mirrored pass (mirror_pass)")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
+                   help="network arithmetic of every row (default fp32, as every stored figure; rows of another "
+                        "precision are named CHECKPOINT_bf16)")
     p.add_argument("--rescore-edges", action="store_true",
                    help="add edge F to every summary row whose depth folders are still under --out, then print")
     args = p.parse_args(argv)
@@ -94,7 +97,8 @@ def main(argv=None) -> int:
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
     modes = ("estm_m2",) + (("hybrid",) if args.hybrid else ())
     rows = modes + (("estm_mirror", "hybrid_mirror")[:len(modes)] if args.mirror else ())
-    jobs = [(Path(c).stem, c, rows) for c in args.checkpoints]
+    suffix = "" if args.precision == "fp32" else f"_{args.precision}"
+    jobs = [(Path(c).stem + suffix, c, rows) for c in args.checkpoints]
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
@@ -104,7 +108,8 @@ def main(argv=None) -> int:
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():
             # each checkpoint sweeps its own trained range, as the product uses it; the plane sweep the first's
-            opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(ck), mesh=False)
+            opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(ck), mesh=False,
+                                precision=args.precision)
             res = depth_table(scan, out / name / scan_name, opts, log=lambda s: print(f"{name} {scan_name}: {s}"))
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"

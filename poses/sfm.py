@@ -430,10 +430,10 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     if ordered:
         displaced = drop_displaced_blocks(rec, image_names) if config.motion_check else []
     else:
-        kept = KeptModel(rec, model_dir, distortion, _drop_misplaced(rec, database_path, config))
+        kept = checked_model(rec, model_dir, distortion, database_path, config)
         if config.pair_pruning:
             kept, pruning = map_without_gross_pairs(kept, database_path, image_dir, work_dir, attempt, config, timings)
-        rec, model_dir, distortion, displaced = kept
+        rec, model_dir, distortion, displaced, _ = kept
     if distortion.get("kept") or displaced or pruning.get("kept") == "pruned":
         rec.write(str(model_dir))
     timings["sfm_total"] = time.perf_counter() - t_start
@@ -530,13 +530,19 @@ class KeptModel(NamedTuple):
     model_dir: Path
     distortion: dict  # its distortion test ({} when none ran)
     displaced: list[str]  # photos the placement check left unposed
+    residuals: list[tuple[str, str, int, float, float]]  # pair_residuals of the photos still posed
 
 
-def _drop_misplaced(rec, database_path: Path, config: SfMConfig) -> list[str]:
-    """The placement check on `rec` (when on): the photos it leaves unposed."""
-    if not config.placement_check:
-        return []
-    return drop_misplaced_photos(rec, pair_residuals(rec, photo_pairs(rec, database_path)))
+def checked_model(rec, model_dir: Path, distortion: dict, database_path: Path, config: SfMConfig) -> KeptModel:
+    """`rec` through the placement check (when on), with the pair residuals pair pruning weighs it by (when on).
+    Unposing a photo moves no other, so the residuals of the pairs left are those measured before the check."""
+    if not (config.placement_check or config.pair_pruning):
+        return KeptModel(rec, model_dir, distortion, [], [])
+    residuals = pair_residuals(rec, photo_pairs(rec, database_path))
+    displaced = drop_misplaced_photos(rec, residuals) if config.placement_check else []
+    left = set(displaced)
+    return KeptModel(rec, model_dir, distortion, displaced,
+                     [r for r in residuals if r[0] not in left and r[1] not in left])
 
 
 def copy_database_without(database_path: Path, out_path: Path, pairs: list[tuple[str, str]]) -> Path:
@@ -562,7 +568,7 @@ def map_without_gross_pairs(first: KeptModel, database_path: Path, image_dir: Pa
     against it. The second mapping runs on a copy of the database (database_pruned.db) with the same attempt,
     the distortion test when the first had one, and the placement check. Returns the kept model and a report."""
     t0 = time.perf_counter()
-    residuals = pair_residuals(first.reconstruction, photo_pairs(first.reconstruction, database_path))
+    residuals = first.residuals
     gross = [(a, b) for a, b, _, rotation, direction in residuals if grossly_off(rotation, direction)]
     report = {"pairs": len(residuals), "pruned": len(gross), "kept": "first"}
     if not gross:
@@ -580,9 +586,8 @@ def map_without_gross_pairs(first: KeptModel, database_path: Path, image_dir: Pa
     distortion = first.distortion
     if distortion:  # the first model went through the distortion test: so does the second
         rec, distortion = distortion_test(rec, config, timings)
-    second = KeptModel(rec, out / str(index), distortion, _drop_misplaced(rec, database_path, config))
-    first_inliers = agreeing_inliers(residuals)
-    second_inliers = agreeing_inliers(pair_residuals(rec, photo_pairs(rec, database_path)))
+    second = checked_model(rec, out / str(index), distortion, database_path, config)
+    first_inliers, second_inliers = agreeing_inliers(residuals), agreeing_inliers(second.residuals)
     report.update(agreeing_inliers_first=first_inliers, agreeing_inliers_pruned=second_inliers,
                   registered_pruned=rec.num_reg_images())
     timings["pair_pruning"] = time.perf_counter() - t0

@@ -179,7 +179,7 @@ def test_resume_reuses_finished_frames_only_with_same_settings(tmp_path, scan):
 
 
 def test_bf16_precision_stays_close_to_fp32(estimator, scan):
-    fp32 = _run(estimator, scan, mode="estm")
+    fp32 = _run(estimator, scan, mode="estm", precision="fp32")
     bf16 = []
     for r in estimator.run(scan, DepthOptions(mode="estm", precision="bf16")):
         assert not torch.is_autocast_enabled("cpu")  # autocast does not leak out of the generator
@@ -190,6 +190,18 @@ def test_bf16_precision_stays_close_to_fp32(estimator, scan):
     assert any(np.abs(a.depth - b.depth).max() > 0 for a, b in zip(fp32, bf16))  # it did run in bf16
     with pytest.raises(ReconError, match="precision"):
         _run(estimator, scan, precision="fp8")
+
+
+def test_auto_precision_runs_what_the_hardware_computes_and_says_so(estimator, scan, tmp_path):
+    from depth.device import computes_bf16
+
+    expected = "bf16" if computes_bf16(torch.device("cpu")) else "fp32"
+    summary = estimate_depth(scan, tmp_path / "auto", DepthOptions(mode="estm", precision="auto"), estimator=estimator)
+    assert summary["precision"] == expected  # depth.json names the arithmetic that ran, not "auto"
+    auto = [load_depth_map(tmp_path / "auto", name) for name in scan.names]
+    same = estimate_depth(scan, tmp_path / expected, DepthOptions(mode="estm", precision=expected), estimator=estimator)
+    assert same["precision"] == expected
+    assert all(np.array_equal(a, load_depth_map(tmp_path / expected, name)) for a, name in zip(auto, scan.names))
 
 
 def test_the_mirrored_camera_sees_the_mirrored_image():
