@@ -144,7 +144,8 @@ def summary_cards(report: dict, frames: int, keyframes: int, metric: bool, posed
                                                                     f"pixels in {_seconds(depth_filter['seconds'])}"})
     depth = stages.get("depth", {})
     if depth.get("seconds_per_frame") is not None:
-        cards.append({"label": f"depth per keyframe ({depth.get('mode', '')})",
+        arithmetic = f", {depth['precision']}" if depth.get("precision") else ""  # the network's, if one ran
+        cards.append({"label": f"depth per keyframe ({depth.get('mode', '')}{arithmetic})",
                       "value": _seconds(depth["seconds_per_frame"])})
     timing = report.get("timing", {})
     if timing:

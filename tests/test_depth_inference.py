@@ -279,8 +279,8 @@ def test_crop_fit_gives_no_depth_outside_the_window(estimator):
 
 @pytest.mark.slow
 def test_compiled_network_gives_the_same_depth(estimator, scan):
-    eager = _run(estimator, scan, mode="estm")
-    compiled = _run(estimator, scan, mode="estm", compile=True)
+    eager = _run(estimator, scan, mode="estm", precision="fp32")
+    compiled = _run(estimator, scan, mode="estm", precision="fp32", compile=True)
     assert estimator.network_calls(True) is estimator.network_calls(True)  # compiled once, then reused
     for a, b in zip(eager, compiled):
         assert np.allclose(a.depth, b.depth, rtol=1e-4, atol=1e-4)
@@ -292,8 +292,8 @@ def test_cuda_graphs_give_the_same_depth(scan):
     pass keeps over frames must not be overwritten by the next replay."""
     torch.manual_seed(0)
     cuda = DepthEstimator(ESTNet(TINY), "cuda")
-    eager = _run(cuda, scan, mode="estm", device="cuda")
-    graphed = _run(cuda, scan, mode="estm", device="cuda", compile=True)
+    eager = _run(cuda, scan, mode="estm", device="cuda", precision="fp32")
+    graphed = _run(cuda, scan, mode="estm", device="cuda", precision="fp32", compile=True)
     for a, b in zip(eager, graphed):
         assert np.allclose(a.depth, b.depth, rtol=1e-3, atol=1e-3)
 

@@ -22,8 +22,11 @@ def test_figures_are_rounded_with_units():
     assert format_value(float("nan"), "ratio", "m") == "n/a" and format_value(None, "length", "m") == "n/a"
     assert format_value(16, "count", "m") == "16" and format_value(0.226612, "ratio", "m") == "0.2266"
     cards = summary_cards({"memory": {"peak_rss_mb": 879.9375}, "timing": {"scan": 1.25, "depth": 159.61},
-                           "stages": {"fusion": {"vertices": 22263, "faces": 37400}}}, 120, 16, False, "118 of 120")
+                           "stages": {"fusion": {"vertices": 22263, "faces": 37400},
+                                      "depth": {"mode": "estm", "precision": "bf16", "seconds_per_frame": 0.47}}},
+                          120, 16, False, "118 of 120")
     values = {c["label"]: c["value"] for c in cards}
+    assert values["depth per keyframe (estm, bf16)"] == "0.5 s"  # and which arithmetic made the depth
     assert values["peak memory"] == "880 MB" and values["total time"] == "2.7 min"
     assert values["mesh triangles"] == "37,400" and values["scale"] == "SfM units"
     assert values["frames posed by SfM"] == "118 of 120"
