@@ -354,8 +354,8 @@ def train(train_data: Dataset | IterableDataset, out_dir: str | os.PathLike, opt
     if trainer.world > 1:
         net = torch.nn.parallel.DistributedDataParallel(
             net, device_ids=[trainer.device.index] if trainer.device.type == "cuda" else None)
-    if opts.compile:
-        net = torch.compile(net)
+    if opts.compile:  # one graph per clip shape: with dynamic shapes inductor fails on the second (torch 2.13)
+        net = torch.compile(net, dynamic=False)
     loader, sampler, val_loader = _loaders(trainer, train_data, val_data)
     _loop(trainer, net, loader, sampler, val_loader, train_data, progress)
     result = trainer.result
