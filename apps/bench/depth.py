@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=8, help="frames timed after 3 warm-up frames (default 8)")
     parser.add_argument("--memory", type=int, default=None, metavar="N", help="ESTM memory length (default 2)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    parser.add_argument("--precision", choices=("fp32", "bf16"), default="fp32", help="network arithmetic")
+    parser.add_argument("--precision", choices=("fp32", "bf16", "auto"), default="fp32",
+                        help="network arithmetic (default fp32; auto: what `recon depth` picks on this device)")
     parser.add_argument("--compile", action="store_true",
                         help="torch.compile the network (compiled during the warm-up frames, which are not timed)")
     parser.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default 2)")
@@ -62,7 +63,7 @@ def _peak_mb(device: torch.device) -> float:
 def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None = None, device: str = "auto",
             baseline: bool = True, precision: str = "fp32", compile: bool = False) -> dict:
     from depth.config import get_config
-    from depth.device import resolve_device
+    from depth.device import resolve_device, resolve_precision
     from depth.inference import DepthEstimator, DepthOptions, run_planesweep
     from depth.model import ESTNet
     from depth.planesweep import PlaneSweepOptions
@@ -79,6 +80,7 @@ def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None
     gmacs = count_gmacs(cfg, mem_n)
     estimator = DepthEstimator(model, dev)
     scan = plane_scan(frames + 3, cfg.image_width, cfg.image_height, step=0.06)
+    precision = resolve_precision(precision, dev)
     opts = DepthOptions(mode=mode, memory_size=mem_n, device=str(dev.type), precision=precision, compile=compile)
     # One continuous pass (the ESTM memory fills as in real use); the clock starts after 3 warm-up frames.
     start = cpu_start = None
