@@ -34,7 +34,8 @@ def _settings(scan: Scan, opts: DepthOptions, config_name: str | None) -> dict:
     swept = opts.mode in ("planesweep", "hybrid")
     return {"mode": opts.mode, "depth_range": list(scan_depth_range(scan, opts.depth_range)),
             "memory_size": opts.memory_size, "sources": asdict(opts.sources), "joint_group": opts.joint_group,
-            "precision": opts.precision if learned else None, "fit": opts.fit if learned else None, "config": config_name,
+            "precision": opts.precision if learned else None, "fit": opts.fit if learned else None,
+            "config": config_name,
             "full_resolution": opts.full_resolution, "mirror_pass": opts.mirror_pass,
             "weights": str(opts.weights) if learned and opts.weights else None,
             "weights_digest": weights_digest(opts.weights) if learned else None,

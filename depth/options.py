@@ -67,7 +67,7 @@ class DepthOptions:
     device: str = "auto"
     config: str | None = None  # expected network config name; None accepts the checkpoint's
     # network arithmetic: "bf16" autocast, "fp32", or "auto": bf16 where the device computes it in hardware (a
-    # CUDA GPU, a CPU with AMX or AVX512-BF16: 1.65x faster ESTM, the same depth, docs/depth.md), else fp32
+    # CUDA GPU, a CPU with AMX or AVX512-BF16: 1.5x faster ESTM, the same depth, docs/depth.md), else fp32
     precision: str = "auto"
     fit: str = "stretch"  # "stretch" the frame to the network size, or "crop" it (aspect kept, borders lost)
     compile: bool = False  # torch.compile the network (a one-off compile of about a minute, then faster frames)
