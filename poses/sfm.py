@@ -487,7 +487,10 @@ def photo_pairs(rec, database_path: Path) -> list[tuple[str, str, np.ndarray, np
     return pairs
 
 
-def pair_residuals(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[tuple[str, str, int, float, float]]:
+PairResidual = tuple[str, str, int, float, float]  # name a, name b, inliers, rotation and direction residuals (deg)
+
+
+def pair_residuals(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[PairResidual]:
     """(name a, name b, inliers, rotation and travel-direction residuals in degrees) for each of `pairs` (as
     photo_pairs gives them): how far the pair's own relative pose, from its inliers through the model's camera,
     is from the model's (poses/placement.py); 180, 180 when the inliers give no pose."""
@@ -504,12 +507,12 @@ def pair_residuals(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) ->
     return residuals
 
 
-def agreeing_inliers(residuals: list[tuple[str, str, int, float, float]]) -> int:
+def agreeing_inliers(residuals: list[PairResidual]) -> int:
     """Inliers of the pairs that agree with the model, summed: how much of the matching a model explains."""
     return sum(n for _, _, n, rotation, direction in residuals if agrees(rotation, direction))
 
 
-def drop_misplaced_photos(rec, residuals: list[tuple[str, str, int, float, float]]) -> list[str]:
+def drop_misplaced_photos(rec, residuals: list[PairResidual]) -> list[str]:
     """Unpose the photos whose verified pairs' own geometry disagrees with where the model put them
     (poses/placement.py); `residuals` as pair_residuals gives them. Returns the names left unposed, with one warning."""
     names = misplaced([(a, b, n, agrees(rotation, direction)) for a, b, n, rotation, direction in residuals])
@@ -530,7 +533,7 @@ class KeptModel(NamedTuple):
     model_dir: Path
     distortion: dict  # its distortion test ({} when none ran)
     displaced: list[str]  # photos the placement check left unposed
-    residuals: list[tuple[str, str, int, float, float]]  # pair_residuals of the photos still posed
+    residuals: list[PairResidual]  # pair_residuals of the photos still posed
 
 
 def checked_model(rec, model_dir: Path, distortion: dict, database_path: Path, config: SfMConfig) -> KeptModel:

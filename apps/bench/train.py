@@ -29,11 +29,11 @@ def _clips(cfg, count: int) -> list[dict]:
     """`count` augmented training clips (batch of one) from the synthetic stream, as `recon train --synthetic`."""
     from torch.utils.data import default_collate
 
+    from apps.commands.train import training_stream
     from depth.data import ClipOptions, StreamingClips
-    from recon.synthetic import iter_training_mix
 
     opts = ClipOptions(width=cfg.image_width, height=cfg.image_height, scale_jitter=0.4, reverse_share=0.5)
-    stream = StreamingClips(iter_training_mix(4242, (0.25, 10.0), close_ups=True), opts, seed=1)
+    stream = StreamingClips(training_stream(4242, (0.25, 10.0), True, shard=0), opts, seed=1)
     return [default_collate([clip]) for clip in itertools.islice(stream, count)]
 
 
