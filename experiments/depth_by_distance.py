@@ -60,25 +60,13 @@ def run_weights(weights: list[str]) -> None:
 
 
 def run_maps(rows: list[Path], cache: Path) -> None:
-    from depth.metrics import on_gt_grid
-    from experiments.select_checkpoint import heldout_scans
-    from recon.io import load_depth_map
+    from experiments.select_checkpoint import stored_maps
 
-    scans = heldout_scans(cache)
-    for scan_name, scan in scans.items():
-        for row in rows:
-            folder = row / scan_name / "estm_m2"
-            if not folder.is_dir():
-                continue
-            gt_all, pred_all = [], []
-            for i in range(len(scan)):
-                gt = scan.depth(i)
-                pred = on_gt_grid(load_depth_map(folder, scan.frames[i].name), gt)
-                valid = np.isfinite(gt) & (gt > 1e-3) & (gt < 10.0)  # the selection's evaluation range
-                gt_all.append(gt[valid])
-                pred_all.append(pred[valid])
-            print(f"{scan_name} {row.name}")
-            print("\n".join(band_rows(np.concatenate(gt_all), np.concatenate(pred_all))))
+    for scan_name, _, row, gts, preds in stored_maps(rows, cache):
+        valid = [np.isfinite(gt) & (gt > 1e-3) & (gt < 10.0) for gt in gts]  # the selection's evaluation range
+        print(f"{scan_name} {row.name}")
+        print("\n".join(band_rows(np.concatenate([g[v] for g, v in zip(gts, valid)]),
+                                  np.concatenate([p[v] for p, v in zip(preds, valid)]))))
 
 
 def main(argv=None) -> None:

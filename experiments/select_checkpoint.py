@@ -52,6 +52,21 @@ def heldout_scans(cache: Path):
     return scans
 
 
+def stored_maps(rows: list[Path], cache: Path):
+    """For each held-out scan and each selection row folder that has its ESTM maps (`ROW/<scan>/estm_m2`):
+    (scan name, scan, row, GT maps, predicted maps on the GT grid), nothing recomputed."""
+    from depth.metrics import on_gt_grid
+    from recon.io import load_depth_map
+
+    for scan_name, scan in heldout_scans(cache).items():
+        gts = [scan.depth(i) for i in range(len(scan))]
+        for row in rows:
+            folder = row / scan_name / "estm_m2"
+            if folder.is_dir():
+                preds = [on_gt_grid(load_depth_map(folder, f.name), gt) for f, gt in zip(scan.frames, gts)]
+                yield scan_name, scan, row, gts, preds
+
+
 def rescore_edges(summary: dict, scans: dict, out: Path) -> None:
     """Edge F of rows scored before it existed, from the depth maps their run left under `out`."""
     from depth.metrics import evaluate_depth_folder

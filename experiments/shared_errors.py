@@ -36,12 +36,7 @@ def pair_errors(pred_a, gt_a, pred_b, gt_b, K, a_to_world, b_to_world) -> tuple[
     return ((warped_pred[same] - warped_gt[same]) / warped_gt[same], (pred_b[same] - gt_b[same]) / gt_b[same])
 
 
-def scan_row(scan, folder: Path) -> list[str]:
-    from depth.metrics import on_gt_grid
-    from recon.io import load_depth_map
-
-    gts = [scan.depth(i) for i in range(len(scan))]
-    preds = [on_gt_grid(load_depth_map(folder, f.name), gt) for f, gt in zip(scan.frames, gts)]
+def scan_row(scan, gts: list, preds: list) -> list[str]:
     cells = []
     for gap in GAPS:
         corr, gain = [], []
@@ -58,19 +53,15 @@ def scan_row(scan, folder: Path) -> list[str]:
 
 
 def main(argv=None) -> None:
-    from experiments.select_checkpoint import heldout_scans
+    from experiments.select_checkpoint import stored_maps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("rows", nargs="+", type=Path, metavar="ROW_DIR", help="selection rows' folders")
     parser.add_argument("--cache", type=Path, default=ROOT / "runs" / "select" / "scans",
                         help="held-out scan cache of experiments/select_checkpoint.py (made when missing)")
     args = parser.parse_args(argv)
-    for scan_name, scan in heldout_scans(args.cache).items():
-        for row in args.rows:
-            folder = row / scan_name / "estm_m2"
-            if folder.is_dir():
-                print(f"{scan_name:18s} {row.name:28s} " + " | ".join(scan_row(scan, folder)), flush=True)
-
+    for scan_name, scan, row, gts, preds in stored_maps(args.rows, args.cache):
+        print(f"{scan_name:18s} {row.name:28s} " + " | ".join(scan_row(scan, gts, preds)), flush=True)
 
 if __name__ == "__main__":
     main()
