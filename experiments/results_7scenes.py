@@ -21,6 +21,7 @@ from typing import Callable
 from depth.checkpoint import DEFAULT_WEIGHTS
 from fusion.filtering import FilterConfig
 from fusion.mesh import MeshCleanup
+from recon.keyframes import SourceConfig
 from recon.errors import ReconError
 from recon.scan import Scan
 
@@ -49,6 +50,7 @@ class TableOptions:
     size: tuple[int, int] = (320, 256)
     device: str = "cpu"
     precision: str = "fp32"  # every stored figure and the shipping rules' rows are fp32 (bf16 moves Abs Rel ~0.003)
+    sources: SourceConfig = field(default_factory=SourceConfig)  # how many sources each frame gets, and how far
     mesh: bool = True
     mesh_row: str = "estm_m2"
     mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror")  # also fused and scored, when run
@@ -68,7 +70,7 @@ def row_options(row: str, opts: TableOptions):
     from depth.options import DepthOptions
 
     rng = tuple(opts.depth_range) if opts.depth_range else trained_depth_range(opts.weights)
-    common = dict(depth_range=rng, device=opts.device, precision=opts.precision)
+    common = dict(depth_range=rng, device=opts.device, precision=opts.precision, sources=opts.sources)
     if row == "planesweep":
         return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):

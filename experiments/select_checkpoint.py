@@ -84,6 +84,8 @@ def rescore_edges(summary: dict, scans: dict, out: Path) -> None:
 
 
 def main(argv=None) -> int:
+    from recon.keyframes import SourceConfig
+
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("checkpoints", nargs="*")
     p.add_argument("--out", default="runs/select")
@@ -94,6 +96,10 @@ def main(argv=None) -> int:
     p.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
                    help="network arithmetic of every row (default fp32, as every stored figure; rows of another "
                         "precision are named CHECKPOINT_bf16)")
+    p.add_argument("--sources", type=int, default=SourceConfig.num_sources, metavar="N",
+                   help="sources per frame (default %(default)s; rows of another count are named CHECKPOINT_sN)")
+    p.add_argument("--baseline", type=float, default=SourceConfig.source_baseline, metavar="M",
+                   help="ideal source translation (default %(default)s; rows of another are named CHECKPOINT_bM)")
     p.add_argument("--rescore-edges", action="store_true",
                    help="add edge F to every summary row whose depth folders are still under --out, then print")
     args = p.parse_args(argv)
@@ -112,7 +118,10 @@ def main(argv=None) -> int:
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
     modes = ("estm_m2",) + (("hybrid",) if args.hybrid else ())
     rows = modes + (("estm_mirror", "hybrid_mirror")[:len(modes)] if args.mirror else ())
-    suffix = "" if args.precision == "fp32" else f"_{args.precision}"
+    sources = SourceConfig(num_sources=args.sources, source_baseline=args.baseline).validate()
+    suffix = ("" if args.precision == "fp32" else f"_{args.precision}") \
+        + ("" if args.sources == SourceConfig.num_sources else f"_s{args.sources}") \
+        + ("" if args.baseline == SourceConfig.source_baseline else f"_b{args.baseline:g}")
     jobs = [(Path(c).stem + suffix, c, rows) for c in args.checkpoints]
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
@@ -124,7 +133,7 @@ def main(argv=None) -> int:
         for scan_name, scan in scans.items():
             # each checkpoint sweeps its own trained range, as the product uses it; the plane sweep the first's
             opts = TableOptions(weights=ck, rows=rows, depth_range=trained_depth_range(ck), mesh=False,
-                                precision=args.precision)
+                                precision=args.precision, sources=sources)
             res = depth_table(scan, out / name / scan_name, opts, log=lambda s: print(f"{name} {scan_name}: {s}"))
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"

@@ -208,6 +208,20 @@ def test_training_clips_have_a_useful_baseline():
         assert min(steps) >= 0.1 and max(steps) < 0.5
 
 
+def test_a_keyframe_distance_range_varies_the_baseline_from_room_to_room():
+    def mean_steps(distance):
+        clips = itertools.islice(iter_training_scans(seed=4, width=48, height=40, clips_per_scene=1,
+                                                     keyframe_distance=distance), 6)
+        return [float(np.mean([pose_distance(a, b)[0] for a, b in zip(c.camera_to_world[:-1], c.camera_to_world[1:])]))
+                for c in clips]
+
+    fixed, ranged = mean_steps(0.2), mean_steps((0.1, 0.5))
+    assert max(fixed) - min(fixed) < 0.05 and min(fixed) >= 0.2
+    assert max(ranged) - min(ranged) > 0.1 and min(ranged) >= 0.1
+    with pytest.raises(ReconError):
+        next(iter_training_scans(keyframe_distance=(0.4, 0.2)))
+
+
 def _near_share(clips) -> float:
     depth = np.concatenate([clip.depth(i).ravel() for clip in clips for i in range(len(clip))])
     return float(np.mean(depth[depth > 0] < 1.0))

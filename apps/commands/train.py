@@ -32,6 +32,9 @@ def add_arguments(p) -> None:
     p.add_argument("--close-ups", action="store_true",
                    help="with --synthetic: every third clip from a walk close to walls and furniture, in rooms up to "
                         "12 m across (3-7 times the share of depth under 1 m)")
+    p.add_argument("--keyframe-distance", type=float, nargs="+", default=[0.2], metavar="D",
+                   help="with --synthetic: pose distance between clip frames (default 0.2); MIN MAX: each room "
+                        "draws its own, so the same depth shows a different parallax from room to room")
     p.add_argument("--format", default="auto", help="input format of the scans (default: auto-detect)")
     options.add_selection(p)
     p.add_argument("--val", nargs="*", default=[], metavar="SCAN",
@@ -154,7 +157,8 @@ def synthetic_depth_range(args: argparse.Namespace) -> tuple[float, float]:
     return trained_depth_range(args.init or args.resume) or (0.25, 10.0)
 
 
-def training_stream(seed: int, depth_range: tuple[float, float], close_ups: bool, shard: int):
+def training_stream(seed: int, depth_range: tuple[float, float], close_ups: bool, shard: int,
+                    keyframe_distance: float | tuple[float, float] = 0.2):
     """Loader worker `shard`'s synthetic stream: shard 0 (also the only one without workers) draws from `seed`
     itself, every other worker from a seed of its own, so workers render different rooms."""
     import numpy as np
@@ -163,7 +167,7 @@ def training_stream(seed: int, depth_range: tuple[float, float], close_ups: bool
 
     if shard:
         seed = int(np.random.SeedSequence([seed, 1 << 20, shard]).generate_state(1)[0] & 0x3FFFFFFF)
-    return iter_training_mix(seed, depth_range, close_ups=close_ups)
+    return iter_training_mix(seed, depth_range, keyframe_distance, close_ups=close_ups)
 
 
 def _data(args: argparse.Namespace, cfg):
@@ -184,6 +188,8 @@ def _data(args: argparse.Namespace, cfg):
         raise ReconError("recon train: give training scans or --synthetic (one of the two)")
     if not 0 <= args.reverse_share <= 1:
         raise ReconError(f"--reverse-share is a share of clips, in [0, 1]; got {args.reverse_share}")
+    if len(args.keyframe_distance) > 2:
+        raise ReconError("--keyframe-distance takes one distance or a MIN MAX range")
     if not args.synthetic:
         val = ClipDataset(scans(args.val), plain) if args.val else None
         return ClipDataset(scans(args.scans), clip, seed=args.seed), val
@@ -194,7 +200,9 @@ def _data(args: argparse.Namespace, cfg):
 
     rank = int(os.environ.get("RANK", "0"))
     depth_range = synthetic_depth_range(args)
-    stream = functools.partial(training_stream, stream_seed(args, rank), depth_range, args.close_ups)
+    distance = args.keyframe_distance[0] if len(args.keyframe_distance) == 1 else tuple(args.keyframe_distance)
+    stream = functools.partial(training_stream, stream_seed(args, rank), depth_range, args.close_ups,
+                               keyframe_distance=distance)
     if args.val:
         val = ClipDataset(scans(args.val), plain)
     else:
@@ -203,6 +211,7 @@ def _data(args: argparse.Namespace, cfg):
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
         "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
         "depth_range": list(depth_range), **({"close_ups": True} if args.close_ups else {}),
+        **({"keyframe_distance": args.keyframe_distance} if args.keyframe_distance != [0.2] else {}),
         **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 

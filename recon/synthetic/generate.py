@@ -214,7 +214,7 @@ def write_synthetic_scan(config: SynthConfig, out_dir: str | os.PathLike, video:
 
 
 def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, height: int = 256,
-                        keyframe_distance: float = 0.1, clips_per_scene: int = 8,
+                        keyframe_distance: float | tuple[float, float] = 0.1, clips_per_scene: int = 8,
                         effects: SensorEffects = SensorEffects(), scene: SceneConfig = SceneConfig(),
                         trajectory: TrajectoryConfig = TrajectoryConfig(), fps: float = 30.0,
                         hfov_range_deg: tuple[float, float] = (55.0, 75.0), shadows: bool = True,
@@ -225,10 +225,13 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
     whenever the camera moved `keyframe_distance` (the DESIGN's pose distance) since the last one,
     so neighbours have a baseline a multi-view network can triangulate from. `sizes`: image sizes
     (width, height) each room draws one of (aspect ratios, portrait and landscape); default
-    width x height.
+    width x height. A (min, max) `keyframe_distance`: each room draws its own from that range, so the
+    same depth shows a different parallax from room to room.
     """
-    if clip_frames < 1 or clips_per_scene < 1 or keyframe_distance < 0:
-        raise ReconError("training clips need clip_frames >= 1, clips_per_scene >= 1, keyframe_distance >= 0")
+    distances = keyframe_distance if isinstance(keyframe_distance, tuple) else (keyframe_distance,) * 2
+    if clip_frames < 1 or clips_per_scene < 1 or not 0 <= distances[0] <= distances[1]:
+        raise ReconError("training clips need clip_frames >= 1, clips_per_scene >= 1, 0 <= keyframe_distance "
+                         "(a (min, max) range: min <= max)")
     base = SynthConfig(seed=seed, frames=clip_frames, width=width, height=height, fps=fps, effects=effects,
                        scene=scene, trajectory=trajectory, hfov_range_deg=hfov_range_deg, shadows=shadows).validate()
     library = texture_library(base.texture_size)
@@ -241,11 +244,12 @@ def iter_training_scans(seed: int = 0, clip_frames: int = 5, width: int = 320, h
         room = generate_scene(scene_seed, library, scene)
         renderer = Renderer(room, library, shadows=shadows)
         intrinsics = camera_intrinsics(config, np.random.default_rng([scene_seed, 3]))
+        distance = float(np.random.default_rng([scene_seed, 7]).uniform(*distances))
         # About 8 frames per keyframe at walking pace; a longer walk than needed costs nothing (poses only).
-        walk_frames = int(clip_frames * clips_per_scene * 10 * max(1.0, keyframe_distance / 0.1))
+        walk_frames = int(clip_frames * clips_per_scene * 10 * max(1.0, distance / 0.1))
         poses = handheld_trajectory(room.free_space, walk_frames, fps, np.random.default_rng([scene_seed, 4]),
                                     trajectory, scene.camera_clearance_m)
-        keyframes = select_keyframes(poses, KeyframeConfig(keyframe_distance=keyframe_distance))
+        keyframes = select_keyframes(poses, KeyframeConfig(keyframe_distance=distance))
         effects_rng = np.random.default_rng([scene_seed, 5])
         for clip in range(min(clips_per_scene, len(keyframes) // clip_frames)):
             indices = keyframes[clip * clip_frames:(clip + 1) * clip_frames]
@@ -270,14 +274,16 @@ CLOSE_UP_SCENE = SceneConfig(room_width_m=(3.0, 12.0), camera_clearance_m=0.3)
 CLOSE_UP_WALK = TrajectoryConfig(pitch_deg=(-50.0, -3.0), look_at_room=-0.7, sweep_deg=(30.0, 70.0))
 
 
-def iter_training_mix(seed: int, depth_range: tuple[float, float], keyframe_distance: float = 0.2,
+def iter_training_mix(seed: int, depth_range: tuple[float, float],
+                      keyframe_distance: float | tuple[float, float] = 0.2,
                       hfov_range_deg: tuple[float, float] = (45.0, 90.0),
                       sizes: tuple[tuple[int, int], ...] = TRAINING_SIZES, clips_per_scene: int = 8,
                       close_ups: bool = False) -> Iterator[Scan]:
     """The depth network's training stream: clean clips alternating with clips that carry realistic
     sensor effects (noise, motion blur, exposure and white-balance drift, JPEG), cameras of 45-90
     degrees in several aspect ratios, and one fixed `depth_range` (so planes mean the same metres in
-    every clip and at inference). Keyframes 0.2 apart: about the baseline inference picks for sources.
+    every clip and at inference). Keyframes 0.2 apart: about the baseline inference picks for sources
+    (a (min, max) range: each room draws its own).
     `close_ups`: every third clip from a close-up walk (CLOSE_UP_SCENE, CLOSE_UP_WALK) with sensor effects.
     """
     variants = [(0, SensorEffects(), SceneConfig(), TrajectoryConfig()),
