@@ -5,6 +5,9 @@ which weighs a near wall as much as a far one, as Abs Rel and the depth-range pl
 An optional gradient term (`grad_weight`) adds the multi-scale gradient of the log-depth residual
 of the full-resolution output: zero for a map that is right up to scale, large where the
 prediction smooths over an edge the ground truth has, so it rewards depth that follows the image.
+`near_factor` > 1 weighs depth that is too near that many times as much as depth too far: a surface
+put in front of the true one costs the fused mesh far more than one put behind it
+(experiments/error_sides.py), so where the network is unsure it should err far.
 """
 from __future__ import annotations
 
@@ -20,12 +23,14 @@ def stage_weights(num_stages: int = 4, decay: float = STAGE_DECAY) -> list[float
     return [decay ** (num_stages - 1 - s) for s in range(num_stages)]
 
 
-def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str) -> torch.Tensor:
+def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str, near_factor: float = 1.0) -> torch.Tensor:
     if kind == "l1":
-        return (pred - target).abs()
-    if kind == "log_l1":
-        return (torch.log(pred.clamp_min(1e-3)) - torch.log(target.clamp_min(1e-3))).abs()
-    raise ValueError(f"unknown loss {kind!r} (expected one of {LOSSES})")
+        err = (pred - target).abs()
+    elif kind == "log_l1":
+        err = (torch.log(pred.clamp_min(1e-3)) - torch.log(target.clamp_min(1e-3))).abs()
+    else:
+        raise ValueError(f"unknown loss {kind!r} (expected one of {LOSSES})")
+    return err if near_factor == 1.0 else torch.where(pred < target, near_factor * err, err)
 
 
 def log_gradient_error(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, scales: int = 4
@@ -48,14 +53,15 @@ def log_gradient_error(pred: torch.Tensor, target: torch.Tensor, valid: torch.Te
 
 
 def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: str = "l1",
-                     decay: float = STAGE_DECAY, grad_weight: float = 0.0) -> tuple[torch.Tensor, list[float]]:
+                     decay: float = STAGE_DECAY, grad_weight: float = 0.0, near_factor: float = 1.0
+                     ) -> tuple[torch.Tensor, list[float]]:
     """Loss over targets and stages.
 
     depths[t][s]: (B, 1, h_s, w_s) predicted depth of target t at stage s; gt: (B, T, H, W)
     metres, 0 = invalid. Lower-resolution predictions are upsampled (bilinear) to the
     GT resolution, so every stage is judged on the same pixels. Returns the loss and the
     per-stage error averaged over targets (for logging). `grad_weight` > 0 adds that much of
-    `log_gradient_error` of the last (full-resolution) stage per target.
+    `log_gradient_error` of the last (full-resolution) stage per target; `near_factor` weighs depth too near.
     """
     weights = stage_weights(len(depths[0]), decay)
     total = gt.new_zeros(())
@@ -70,7 +76,7 @@ def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: s
         for s, (w, pred) in enumerate(zip(weights, stages)):
             if pred.shape[-2:] != target.shape[-2:]:
                 pred = F.interpolate(pred, target.shape[-2:], mode="bilinear", align_corners=False)
-            err = (_pixel_error(pred.float(), target, kind) * valid).sum() / count
+            err = (_pixel_error(pred.float(), target, kind, near_factor) * valid).sum() / count
             total = total + w * err
             per_stage[s] += float(err.detach()) / len(depths)
         if grad_weight > 0:

@@ -155,6 +155,15 @@ def test_gradient_term_rewards_edges_not_scale():
     assert float(with_grad - loss) == pytest.approx(2.0 * blurred, rel=1e-5)
 
 
+def test_near_factor_weighs_only_depth_that_is_too_near():
+    gt = torch.full((1, 1, 2, 2), 2.0)
+    near, far = torch.full((1, 1, 2, 2), 1.5), torch.full((1, 1, 2, 2), 2.5)  # both 0.5 m off
+    for kind in ("l1", "log_l1"):
+        plain = [float(multi_stage_loss([[p]], gt, kind)[0]) for p in (near, far)]
+        weighted = [float(multi_stage_loss([[p]], gt, kind, near_factor=3.0)[0]) for p in (near, far)]
+        assert weighted[0] == pytest.approx(3.0 * plain[0]) and weighted[1] == pytest.approx(plain[1])
+
+
 def test_config_round_trip_and_errors():
     assert ESTConfig.from_dict(COMPACT.to_dict()) == COMPACT
     assert get_config("paper") is PAPER

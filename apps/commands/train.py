@@ -68,6 +68,9 @@ def add_arguments(p) -> None:
     opt.add_argument("--grad-weight", type=float, default=0.0, metavar="W",
                      help="add W x the multi-scale gradient of the log-depth error of the full-resolution "
                           "output, which rewards edges where the ground truth has them (default 0: off)")
+    opt.add_argument("--near-factor", type=float, default=1.0, metavar="F",
+                     help="weigh depth that is too near F times as much as depth too far: fusion turns it into "
+                          "surfaces in front of the true ones, which cost the mesh most (default 1: symmetric)")
     opt.add_argument("--batch-size", type=int, default=1)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
@@ -245,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
         batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, schedule=args.schedule,
         lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
-        grad_weight=args.grad_weight,
+        grad_weight=args.grad_weight, near_factor=args.near_factor,
         low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
         checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         amp=None if args.amp == "off" else args.amp, compile=args.compile, device=args.device,
