@@ -62,11 +62,8 @@ def main(argv=None) -> int:
     p.add_argument("--scans", default="", help="comma list of held-out scan names (default: all)")
     args = p.parse_args(argv)
 
-    import trimesh
-
     from experiments.results_7scenes import TableOptions, mesh_scores
-    from experiments.select_checkpoint import stored_maps
-    from fusion.evaluate import mesh_metrics
+    from experiments.select_checkpoint import stored_maps, unculled_fscore
 
     wanted = set(filter(None, args.scans.split(",")))
     print("| scan | row | too near > 5 / 15 cm | too far > 5 / 15 cm | mesh F, culled / not: as predicted | "
@@ -81,8 +78,7 @@ def main(argv=None) -> int:
             out = args.out / row.name / f"{scan_name}_{side}_fixed"
             oracle_maps(scan, row / scan_name / "estm_m2", out / "estm_m2", side)
             culled = mesh_scores(scan, out, TableOptions(), log=lambda s: None)["fscore"]
-            meshes = [trimesh.load(out / f"mesh_{k}.ply", process=False) for k in ("estm_m2", "gt_fusion")]
-            scores[side] = f"{culled:.3f} / {mesh_metrics(*meshes)['fscore']:.3f}"
+            scores[side] = f"{culled:.3f} / {unculled_fscore(out, 'estm_m2'):.3f}"
         print(f"| {scan_name} | {row.name} | {shares['near_5cm']:.1%} / {shares['near_15cm']:.1%} | "
               f"{shares['far_5cm']:.1%} / {shares['far_15cm']:.1%} | {scores['none']} | {scores['near']} | "
               f"{scores['far']} |", flush=True)

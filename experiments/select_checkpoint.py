@@ -10,7 +10,8 @@ need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (EST
 sweep), `--mirror` the same rows with the mirrored pass. Every row's depth is also fused (TSDF, 4 cm voxels)
 and scored against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale"
 is the median prediction / GT ratio (1 = no scale bias); "edge F" whether the depth has the scene's
-occluding edges (`depth.metrics.edge_counts`; `--rescore-edges` adds it to rows scored before it). Every row
+occluding edges (`depth.metrics.edge_counts`), "mesh F unculled" the mesh F without the protocol's visibility
+culling (`--rescore` adds both to rows scored before them). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 to 910004 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256;
@@ -67,8 +68,20 @@ def stored_maps(rows: list[Path], cache: Path):
                 yield scan_name, scan, row, gts, preds
 
 
-def rescore_edges(summary: dict, scans: dict, out: Path) -> None:
-    """Edge F of rows scored before it existed, from the depth maps their run left under `out`."""
+def unculled_fscore(folder: Path, row: str) -> float:
+    """Mesh F of the row's fused mesh without the protocol's visibility culling: surfaces behind the GT in every
+    view count too (a network that errs far is not spared them)."""
+    import trimesh
+
+    from fusion.evaluate import mesh_metrics
+
+    meshes = [trimesh.load(folder / f"mesh_{name}.ply", process=False) for name in (row, "gt_fusion")]
+    return mesh_metrics(*meshes)["fscore"]
+
+
+def rescore(summary: dict, scans: dict, out: Path) -> None:
+    """Edge F and unculled mesh F of rows scored before they existed, from the depth maps and meshes their run
+    left under `out`."""
     from depth.metrics import evaluate_depth_folder
     from recon.errors import ReconError
 
@@ -81,6 +94,9 @@ def rescore_edges(summary: dict, scans: dict, out: Path) -> None:
                     scores["edge_f"] = evaluate_depth_folder(folder, scans[scan_name])["edge_f"]
                 except ReconError as e:  # a folder a later run overwrote with fewer frames
                     print(f"{key} {scan_name}: no edge F ({e})")
+            mesh_row = row or name
+            if "mesh_fscore_unculled" not in scores and (out / name / scan_name / f"mesh_{mesh_row}.ply").is_file():
+                scores["mesh_fscore_unculled"] = unculled_fscore(out / name / scan_name, mesh_row)
 
 
 def main(argv=None) -> int:
@@ -100,8 +116,9 @@ def main(argv=None) -> int:
                    help="sources per frame (default %(default)s; rows of another count are named CHECKPOINT_sN)")
     p.add_argument("--baseline", type=float, default=SourceConfig.source_baseline, metavar="M",
                    help="ideal source translation (default %(default)s; rows of another are named CHECKPOINT_bM)")
-    p.add_argument("--rescore-edges", action="store_true",
-                   help="add edge F to every summary row whose depth folders are still under --out, then print")
+    p.add_argument("--rescore", action="store_true",
+                   help="add edge F and unculled mesh F to every summary row whose depth folders and meshes are "
+                        "still under --out, then print")
     args = p.parse_args(argv)
 
     import torch
@@ -126,8 +143,8 @@ def main(argv=None) -> int:
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
-    if args.rescore_edges:
-        rescore_edges(summary, scans, out)
+    if args.rescore:
+        rescore(summary, scans, out)
         summary_path.write_text(json.dumps(summary, indent=2))
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():
@@ -143,11 +160,12 @@ def main(argv=None) -> int:
                 mesh = mesh_scores(scan, out / name / scan_name, TableOptions(mesh_row=row),
                                    log=lambda s: print(f"{name} {scan_name}: {s}"))
                 summary[key][scan_name].update({f"mesh_{k}": mesh[k] for k in ("prec", "recall", "fscore")})
+                summary[key][scan_name]["mesh_fscore_unculled"] = unculled_fscore(out / name / scan_name, row)
             summary_path.write_text(json.dumps(summary, indent=2))
     names = list(scans)
     print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / within 5 cm / mesh F / scale" for n in names)
-          + " | mean Abs Rel | mean mesh F | mean edge F |")
-    print("|---|" + "---|" * (len(names) + 3))
+          + " | mean Abs Rel | mean mesh F | mean edge F | mean mesh F unculled |")
+    print("|---|" + "---|" * (len(names) + 4))
     nan = float("nan")
     for key, per in summary.items():
         cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('within_5cm', nan):.1%}"
@@ -155,9 +173,9 @@ def main(argv=None) -> int:
                  for n in names]
         scored = [n for n in names if n in per]
         mean = {k: sum(per[n].get(k, nan) for n in scored) / max(len(scored), 1)
-                for k in ("abs_rel", "mesh_fscore", "edge_f")}
-        print(f"| {key} | " + " | ".join(cells)
-              + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} | {mean['edge_f']:.3f} |")
+                for k in ("abs_rel", "mesh_fscore", "edge_f", "mesh_fscore_unculled")}
+        print(f"| {key} | " + " | ".join(cells) + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} | "
+              f"{mean['edge_f']:.3f} | {mean['mesh_fscore_unculled']:.3f} |")
     return 0
 
 
