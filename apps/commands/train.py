@@ -24,17 +24,21 @@ def register(subparsers):
                     "several GPUs.")
 
 
-def add_arguments(p) -> None:
-    p.add_argument("scans", nargs="*", help="training scans (any supported format with GT depth)")
+def _add_synthetic_arguments(p) -> None:
     p.add_argument("--synthetic", action="store_true",
                    help="train on an endless stream of synthetic rooms (clean and sensor-degraded clips, several "
                         "cameras and aspect ratios) instead of scans; needs --max-steps or a deadline")
     p.add_argument("--close-ups", action="store_true",
                    help="with --synthetic: every third clip from a walk close to walls and furniture, in rooms up to "
                         "12 m across (3-7 times the share of depth under 1 m)")
-    p.add_argument("--keyframe-distance", type=float, nargs="+", default=[0.2], metavar="D",
-                   help="with --synthetic: pose distance between clip frames (default 0.2); MIN MAX: each room "
+    p.add_argument("--clip-keyframe-distance", type=float, nargs="+", default=[0.2], metavar="D",
+                   help="with --synthetic: pose distance between a clip's frames (default 0.2); MIN MAX: each room "
                         "draws its own, so the same depth shows a different parallax from room to room")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("scans", nargs="*", help="training scans (any supported format with GT depth)")
+    _add_synthetic_arguments(p)
     p.add_argument("--format", default="auto", help="input format of the scans (default: auto-detect)")
     options.add_selection(p)
     p.add_argument("--val", nargs="*", default=[], metavar="SCAN",
@@ -191,8 +195,8 @@ def _data(args: argparse.Namespace, cfg):
         raise ReconError("recon train: give training scans or --synthetic (one of the two)")
     if not 0 <= args.reverse_share <= 1:
         raise ReconError(f"--reverse-share is a share of clips, in [0, 1]; got {args.reverse_share}")
-    if len(args.keyframe_distance) > 2:
-        raise ReconError("--keyframe-distance takes one distance or a MIN MAX range")
+    if not 1 <= len(args.clip_keyframe_distance) <= 2:
+        raise ReconError("--clip-keyframe-distance takes one distance or a MIN MAX range")
     if not args.synthetic:
         val = ClipDataset(scans(args.val), plain) if args.val else None
         return ClipDataset(scans(args.scans), clip, seed=args.seed), val
@@ -203,7 +207,8 @@ def _data(args: argparse.Namespace, cfg):
 
     rank = int(os.environ.get("RANK", "0"))
     depth_range = synthetic_depth_range(args)
-    distance = args.keyframe_distance[0] if len(args.keyframe_distance) == 1 else tuple(args.keyframe_distance)
+    distances = args.clip_keyframe_distance
+    distance = distances[0] if len(distances) == 1 else tuple(distances)
     stream = functools.partial(training_stream, stream_seed(args, rank), depth_range, args.close_ups,
                                keyframe_distance=distance)
     if args.val:
@@ -214,7 +219,7 @@ def _data(args: argparse.Namespace, cfg):
     return StreamingClips(stream, clip, seed=args.seed + rank, describe={
         "train": "recon.synthetic.iter_training_mix", "train_seed": stream_seed(args, rank), "val_seed": VAL_SEED,
         "depth_range": list(depth_range), **({"close_ups": True} if args.close_ups else {}),
-        **({"keyframe_distance": args.keyframe_distance} if args.keyframe_distance != [0.2] else {}),
+        **({"clip_keyframe_distance": args.clip_keyframe_distance} if args.clip_keyframe_distance != [0.2] else {}),
         **({"workers": args.workers} if args.workers > 1 else {})}), val
 
 
