@@ -6,8 +6,8 @@ An optional gradient term (`grad_weight`) adds the multi-scale gradient of the l
 of the full-resolution output: zero for a map that is right up to scale, large where the
 prediction smooths over an edge the ground truth has, so it rewards depth that follows the image.
 `near_factor` > 1 weighs depth that is too near that many times as much as depth too far: a surface
-put in front of the true one costs the fused mesh far more than one put behind it
-(experiments/error_sides.py), so where the network is unsure it should err far.
+put in front of the true one costs the fused mesh more than one put behind it, which the evaluation's
+visibility culling drops (experiments/error_sides.py), so where the network is unsure it should err far.
 """
 from __future__ import annotations
 

@@ -21,8 +21,8 @@ from typing import Callable
 from depth.checkpoint import DEFAULT_WEIGHTS
 from fusion.filtering import FilterConfig
 from fusion.mesh import MeshCleanup
-from recon.keyframes import SourceConfig
 from recon.errors import ReconError
+from recon.keyframes import SourceConfig
 from recon.scan import Scan
 
 # ESTDepth (Long et al., CVPR 2021), Table 2: 7-Scenes, zero-shot after ScanNet training.

@@ -74,7 +74,8 @@ def add_arguments(p) -> None:
                           "output, which rewards edges where the ground truth has them (default 0: off)")
     opt.add_argument("--near-factor", type=float, default=1.0, metavar="F",
                      help="weigh depth that is too near F times as much as depth too far: fusion turns it into "
-                          "surfaces in front of the true ones, which cost the mesh most (default 1: symmetric)")
+                          "surfaces in front of the true ones, which the mesh evaluation never culls (default 1: "
+                          "symmetric)")
     opt.add_argument("--batch-size", type=int, default=1)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
