@@ -8,6 +8,9 @@ prediction smooths over an edge the ground truth has, so it rewards depth that f
 `near_factor` > 1 weighs depth that is too near that many times as much as depth too far: a surface
 put in front of the true one costs the fused mesh more than one put behind it, which the evaluation's
 visibility culling drops (experiments/error_sides.py), so where the network is unsure it should err far.
+`near_margin` m > 0 spares the small near errors: only the part of a near error beyond m (a prediction more
+than the fraction m nearer than the truth) weighs the extra F - 1, so the bulk of the pixels, and with them the
+map's scale, keep the symmetric loss and only the too-near tail that the mesh pays for is pushed back.
 """
 from __future__ import annotations
 
@@ -23,14 +26,18 @@ def stage_weights(num_stages: int = 4, decay: float = STAGE_DECAY) -> list[float
     return [decay ** (num_stages - 1 - s) for s in range(num_stages)]
 
 
-def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str, near_factor: float = 1.0) -> torch.Tensor:
+def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str, near_factor: float = 1.0,
+                 near_margin: float = 0.0) -> torch.Tensor:
+    """Per-pixel error; a near error beyond `near_margin` (fraction of the truth) weighs `near_factor` times."""
     if kind == "l1":
-        err = (pred - target).abs()
+        nearer, tolerance = target - pred, near_margin * target
     elif kind == "log_l1":
-        err = (torch.log(pred.clamp_min(1e-3)) - torch.log(target.clamp_min(1e-3))).abs()
+        nearer = torch.log(target.clamp_min(1e-3)) - torch.log(pred.clamp_min(1e-3))
+        tolerance = -torch.log1p(torch.tensor(-near_margin))
     else:
         raise ValueError(f"unknown loss {kind!r} (expected one of {LOSSES})")
-    return err if near_factor == 1.0 else torch.where(pred < target, near_factor * err, err)
+    err = nearer.abs()
+    return err if near_factor == 1.0 else err + (near_factor - 1.0) * (nearer - tolerance).clamp_min(0.0)
 
 
 def log_gradient_error(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, scales: int = 4
@@ -53,15 +60,16 @@ def log_gradient_error(pred: torch.Tensor, target: torch.Tensor, valid: torch.Te
 
 
 def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: str = "l1",
-                     decay: float = STAGE_DECAY, grad_weight: float = 0.0, near_factor: float = 1.0
-                     ) -> tuple[torch.Tensor, list[float]]:
+                     decay: float = STAGE_DECAY, grad_weight: float = 0.0, near_factor: float = 1.0,
+                     near_margin: float = 0.0) -> tuple[torch.Tensor, list[float]]:
     """Loss over targets and stages.
 
     depths[t][s]: (B, 1, h_s, w_s) predicted depth of target t at stage s; gt: (B, T, H, W)
     metres, 0 = invalid. Lower-resolution predictions are upsampled (bilinear) to the
     GT resolution, so every stage is judged on the same pixels. Returns the loss and the
     per-stage error averaged over targets (for logging). `grad_weight` > 0 adds that much of
-    `log_gradient_error` of the last (full-resolution) stage per target; `near_factor` weighs depth too near.
+    `log_gradient_error` of the last (full-resolution) stage per target; `near_factor` weighs depth too near
+    (beyond `near_margin`).
     """
     weights = stage_weights(len(depths[0]), decay)
     total = gt.new_zeros(())
@@ -76,7 +84,7 @@ def multi_stage_loss(depths: list[list[torch.Tensor]], gt: torch.Tensor, kind: s
         for s, (w, pred) in enumerate(zip(weights, stages)):
             if pred.shape[-2:] != target.shape[-2:]:
                 pred = F.interpolate(pred, target.shape[-2:], mode="bilinear", align_corners=False)
-            err = (_pixel_error(pred.float(), target, kind, near_factor) * valid).sum() / count
+            err = (_pixel_error(pred.float(), target, kind, near_factor, near_margin) * valid).sum() / count
             total = total + w * err
             per_stage[s] += float(err.detach()) / len(depths)
         if grad_weight > 0:

@@ -62,6 +62,7 @@ class TrainOptions:
     loss: str = "l1"  # "l1" (paper: metres) or "log_l1" (log depth: relative error, as Abs Rel)
     grad_weight: float = 0.0  # weight of the log-depth gradient term on the full-resolution output
     near_factor: float = 1.0  # depth too near weighs this many times depth too far (depth/loss.py)
+    near_margin: float = 0.0  # ... only beyond this fraction of the truth (0: every near error)
     low_res: tuple[int, int] | None = None  # (width, height) of clips before `full_res_after`
     full_res_after: float = 0.7  # share of the horizon (steps or time) trained at low_res
     val_every: int = 1000  # steps; validation also runs at the end of every epoch
@@ -88,6 +89,8 @@ class TrainOptions:
             raise ReconError(f"the gradient weight must be >= 0, not {self.grad_weight}")
         if not self.near_factor > 0:
             raise ReconError(f"the near factor must be > 0, not {self.near_factor}")
+        if not 0 <= self.near_margin < 1:
+            raise ReconError(f"the near margin must be in [0, 1), not {self.near_margin}")
         if self.schedule == "cosine" and self.max_steps is None and self.deadline is None:
             raise ReconError("the cosine schedule needs a horizon: max_steps or a deadline")
         return self
@@ -117,7 +120,7 @@ def _to(batch: dict, device: torch.device) -> dict:
 
 
 def clip_loss(model: torch.nn.Module, batch: dict, loss: str = "l1", grad_weight: float = 0.0,
-              near_factor: float = 1.0) -> tuple[torch.Tensor, list[float], list]:
+              near_factor: float = 1.0, near_margin: float = 0.0) -> tuple[torch.Tensor, list[float], list]:
     """Joint prediction of the middle frames of a clip batch and its loss.
 
     batch: images (B, V, 3, H, W), K (B, 3, 3), camera_to_world (B, V, 4, 4), depth (B, V, H, W),
@@ -125,7 +128,8 @@ def clip_loss(model: torch.nn.Module, batch: dict, loss: str = "l1", grad_weight
     """
     outputs = model(batch["images"], batch["K"], batch["camera_to_world"], batch["depth_range"])
     total, per_stage = multi_stage_loss([o.depths for o in outputs], batch["depth"][:, 1:-1], loss,
-                                        grad_weight=grad_weight, near_factor=near_factor)
+                                        grad_weight=grad_weight, near_factor=near_factor,
+                                        near_margin=near_margin)
     return total, per_stage, outputs
 
 
@@ -294,7 +298,8 @@ class Trainer:
         self.apply_lr()
         amp = AMP_DTYPES.get(self.opts.amp)
         with torch.autocast(self.device.type, dtype=amp or torch.float32, enabled=amp is not None):
-            loss, per_stage, _ = clip_loss(net, batch, self.opts.loss, self.opts.grad_weight, self.opts.near_factor)
+            loss, per_stage, _ = clip_loss(net, batch, self.opts.loss, self.opts.grad_weight,
+                                           self.opts.near_factor, self.opts.near_margin)
         value = float(loss.detach())
         if not math.isfinite(value):
             log.warning("step %d: non-finite loss, batch skipped", self.step)

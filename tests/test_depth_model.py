@@ -1,4 +1,6 @@
 """The EST network: sizes against the paper, output shapes, gradients, fusion variants, backbone loading."""
+import math
+
 import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
@@ -162,6 +164,18 @@ def test_near_factor_weighs_only_depth_that_is_too_near():
         plain = [float(multi_stage_loss([[p]], gt, kind)[0]) for p in (near, far)]
         weighted = [float(multi_stage_loss([[p]], gt, kind, near_factor=3.0)[0]) for p in (near, far)]
         assert weighted[0] == pytest.approx(3.0 * plain[0]) and weighted[1] == pytest.approx(plain[1])
+
+
+def test_near_margin_spares_small_near_errors_and_weighs_the_rest():
+    gt = torch.full((1, 1, 1, 2), 2.0)
+    pred = torch.tensor([[[[1.9, 1.0]]]])  # 5 % and 50 % too near
+    for kind, excess in (("l1", 1.0 - 0.2), ("log_l1", math.log(2.0) - math.log(1 / 0.9))):
+        plain = float(multi_stage_loss([[pred]], gt, kind)[0])
+        margin = float(multi_stage_loss([[pred]], gt, kind, near_factor=3.0, near_margin=0.1)[0])
+        # only the 50 % pixel's error beyond 10 % of the truth weighs 2 more; mean over the two pixels
+        assert margin - plain == pytest.approx(2.0 * excess / 2, rel=1e-5)
+    far = torch.full((1, 1, 1, 2), 4.0)
+    assert float(multi_stage_loss([[far]], gt, "l1", near_factor=3.0, near_margin=0.1)[0]) == pytest.approx(2.0)
 
 
 def test_config_round_trip_and_errors():

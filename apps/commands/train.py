@@ -76,6 +76,9 @@ def add_arguments(p) -> None:
                      help="weigh depth that is too near F times as much as depth too far: fusion turns it into "
                           "surfaces in front of the true ones, which the mesh evaluation never culls (default 1: "
                           "symmetric)")
+    opt.add_argument("--near-margin", type=float, default=0.0, metavar="M",
+                     help="apply --near-factor only to the part of a near error beyond the fraction M of the "
+                          "true depth, so small errors and the map's scale keep the symmetric loss (default 0)")
     opt.add_argument("--batch-size", type=int, default=1)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
@@ -254,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
         batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay, schedule=args.schedule,
         lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
-        grad_weight=args.grad_weight, near_factor=args.near_factor,
+        grad_weight=args.grad_weight, near_factor=args.near_factor, near_margin=args.near_margin,
         low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
         checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         amp=None if args.amp == "off" else args.amp, compile=args.compile, device=args.device,
