@@ -14,6 +14,8 @@ map's scale, keep the symmetric loss and only the too-near tail that the mesh pa
 """
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
@@ -33,7 +35,7 @@ def _pixel_error(pred: torch.Tensor, target: torch.Tensor, kind: str, near_facto
         nearer, tolerance = target - pred, near_margin * target
     elif kind == "log_l1":
         nearer = torch.log(target.clamp_min(1e-3)) - torch.log(pred.clamp_min(1e-3))
-        tolerance = -torch.log1p(torch.tensor(-near_margin))
+        tolerance = -math.log1p(-near_margin)
     else:
         raise ValueError(f"unknown loss {kind!r} (expected one of {LOSSES})")
     err = nearer.abs()

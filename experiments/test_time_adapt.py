@@ -28,7 +28,9 @@ def ssim_distance(x, y):
     """(1 - SSIM) / 2 over 3x3 windows, averaged over channels: (B, C, H, W) x2 -> (B, 1, H, W)."""
     import torch.nn.functional as F
 
-    pool = lambda t: F.avg_pool2d(F.pad(t, (1, 1, 1, 1), mode="reflect"), 3, 1)  # noqa: E731
+    def pool(t):
+        return F.avg_pool2d(F.pad(t, (1, 1, 1, 1), mode="reflect"), 3, 1)
+
     mx, my = pool(x), pool(y)
     sx, sy, sxy = pool(x * x) - mx * mx, pool(y * y) - my * my, pool(x * y) - mx * my
     c1, c2 = 0.01 ** 2, 0.03 ** 2
@@ -77,7 +79,7 @@ def self_supervised_loss(batch, outputs, smooth_weight: float = 1e-3):
     return total / len(outputs)
 
 
-def adapt(weights: str, scan, steps: int, lr: float, depth_range, seed: int, log) -> "object":
+def adapt(weights: str, scan, steps: int, lr: float, depth_range, seed: int, log) -> "torch.nn.Module":
     """A copy of `weights` fine-tuned on `scan`'s clips with `self_supervised_loss`; returns the model."""
     import torch
 
