@@ -28,14 +28,10 @@ sys.path.insert(0, str(ROOT))
 def seen_through(points_world: np.ndarray, depth_j: np.ndarray, K: np.ndarray, j_to_world: np.ndarray,
                  tolerance: float) -> np.ndarray:
     """(N,) bool: frame j has depth beyond (1 + tolerance) x the point's own depth in j where the point projects."""
-    from recon.geometry import invert_pose, project, transform_points
+    from fusion.filtering import depth_at_projection
 
-    h, w = depth_j.shape
-    uv, z = project(transform_points(invert_pose(j_to_world), points_world), K)
-    u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
-    inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    seen = np.where(inside, depth_j.reshape(-1)[np.where(inside, v * w + u, 0).astype(np.int64)], 0.0)
-    return inside & (seen > 0) & (seen > z * (1.0 + tolerance))
+    z, seen, _ = depth_at_projection(points_world, depth_j, K, j_to_world)
+    return (seen > 0) & (seen > z * (1.0 + tolerance))
 
 
 def freespace_maps(scan, src: Path, dst: Path, setting: str) -> tuple[float, float]:

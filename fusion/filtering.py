@@ -162,17 +162,24 @@ def normalised_grey(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
     return grey / max(float(grey.mean()), 1.0)
 
 
-def view_agreement(points_world: np.ndarray, neighbour_depth: np.ndarray, K: np.ndarray, neighbour_to_world: np.ndarray,
-                   max_rel_diff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """How one neighbour's depth judges points: (observes (N,) bool: the neighbour has depth where they project;
-    agrees (N,) bool; score (N,) in [0, 1]; flat pixel index (N,) into the neighbour, -1 outside it).
-    points_world (N, 3); neighbour_depth (H, W); K (3, 3)."""
+def depth_at_projection(points_world: np.ndarray, neighbour_depth: np.ndarray, K: np.ndarray,
+                        neighbour_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points seen from a neighbour: (their depth z (N,) in its camera; its depth at the nearest pixel they project
+    to (N,), 0 outside it; that flat pixel index (N,), -1 outside). points_world (N, 3); neighbour_depth (H, W)."""
     h, w = neighbour_depth.shape
     uv, z = project(transform_points(invert_pose(neighbour_to_world), points_world), K)
     u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
     inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     pixel = np.where(inside, v * w + u, -1).astype(np.int64)
-    seen = np.where(inside, neighbour_depth.reshape(-1)[np.maximum(pixel, 0)], 0.0)
+    return z, np.where(inside, neighbour_depth.reshape(-1)[np.maximum(pixel, 0)], 0.0), pixel
+
+
+def view_agreement(points_world: np.ndarray, neighbour_depth: np.ndarray, K: np.ndarray, neighbour_to_world: np.ndarray,
+                   max_rel_diff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """How one neighbour's depth judges points: (observes (N,) bool: the neighbour has depth where they project;
+    agrees (N,) bool; score (N,) in [0, 1]; flat pixel index (N,) into the neighbour, -1 outside it).
+    points_world (N, 3); neighbour_depth (H, W); K (3, 3)."""
+    z, seen, pixel = depth_at_projection(points_world, neighbour_depth, K, neighbour_to_world)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.abs(z - seen) / seen
     observes = seen > 0
