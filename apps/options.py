@@ -110,7 +110,7 @@ def add_keyframes(parser) -> None:
 
 
 def add_depth(parser, with_device: bool = False) -> None:
-    from depth.options import FITS, MODES, PRECISIONS, DepthOptions
+    from depth.options import FITS, MODES, PRECISIONS, AdaptOptions, DepthOptions
     from recon.keyframes import SourceConfig
 
     g = parser.add_argument_group("depth")
@@ -139,6 +139,11 @@ def add_depth(parser, with_device: bool = False) -> None:
     g.add_argument("--mirror-pass", action="store_true",
                    help="also run the left-right mirrored video and keep, per pixel, the more confident depth: "
                         "better depth and meshes for twice the network time (docs/depth.md)")
+    g.add_argument("--adapt-steps", type=int, default=_default(AdaptOptions, "steps"), metavar="N",
+                   help="fine-tune the network on the scan itself first (photometric, no ground truth needed; "
+                        "about 4-6 s a step on a CPU, 60 steps measured best; docs/depth.md) (default %(default)s: off)")
+    g.add_argument("--adapt-lr", type=float, default=_default(AdaptOptions, "lr"), metavar="LR",
+                   help="learning rate of --adapt-steps (default %(default)s)")
     if with_device:
         add_device(g)
 
@@ -213,7 +218,7 @@ def keyframe_config(args):
 
 
 def depth_options(args, mode: str):
-    from depth.options import DepthOptions
+    from depth.options import AdaptOptions, DepthOptions
     from recon.keyframes import SourceConfig
 
     return DepthOptions(mode=mode, weights=args.weights, memory_size=args.memory,
@@ -221,6 +226,7 @@ def depth_options(args, mode: str):
                         sources=SourceConfig(window=args.window, source_baseline=args.baseline),
                         device=args.device, config=args.config, precision=args.precision, fit=args.fit,
                         compile=args.compile, mirror_pass=args.mirror_pass,
+                        adapt=AdaptOptions(steps=args.adapt_steps, lr=args.adapt_lr),
                         full_resolution=args.full_res_depth).validate()
 
 

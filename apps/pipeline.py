@@ -392,7 +392,8 @@ class Pipeline:
             summary = estimate_depth(scan, self.out / "depth", opts, resume=True, progress=bar)
         return {"mode": opts.mode, "frames": len(summary["frames"]), "seconds_per_frame": summary["seconds_per_frame"],
                 "weights": summary.get("weights"), "config": summary.get("config"),
-                "precision": summary.get("precision"), "depth_range": summary.get("depth_range")}
+                "precision": summary.get("precision"), "depth_range": summary.get("depth_range"),
+                **({"adaptation": summary["adaptation"]} if "adaptation" in summary else {})}
 
     def stage_fusion(self) -> dict:
         """The keyframes' depth through the depth filter into the TSDF; the filter's figures go to report.json."""

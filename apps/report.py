@@ -147,6 +147,11 @@ def summary_cards(report: dict, frames: int, keyframes: int, metric: bool, posed
         arithmetic = f", {depth['precision']}" if depth.get("precision") else ""  # the network's, if one ran
         cards.append({"label": f"depth per keyframe ({depth.get('mode', '')}{arithmetic})",
                       "value": _seconds(depth["seconds_per_frame"])})
+    adaptation = depth.get("adaptation")
+    if adaptation:
+        cards.append({"label": f"network adapted to the scan ({adaptation['steps']} steps, included above)",
+                      "value": f"{_seconds(adaptation['seconds'])}, photometric loss {adaptation['loss_start']:.3f} "
+                               f"-> {adaptation['loss_end']:.3f}"})
     timing = report.get("timing", {})
     if timing:
         cards.append({"label": "total time", "value": _seconds(sum(timing.values()))})

@@ -16,6 +16,7 @@ from typing import Callable, Iterator
 from recon.io import load_depth_map
 from recon.scan import Scan
 
+from .adapt import adapted_copy
 from .checkpoint import DEFAULT_WEIGHTS, weights_digest
 from .device import resolve_precision
 from .estimator import DepthEstimator, TemporalMemory
@@ -23,7 +24,7 @@ from .hybrid import refine_frames
 from .options import DepthOptions, FrameDepth, check_scan, frame_sources, scan_depth_range
 from .planesweep import run_planesweep
 from .store import DepthStore
-from .views import describe_view
+from .views import describe_view, network_view
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +40,8 @@ def _settings(scan: Scan, opts: DepthOptions, config_name: str | None) -> dict:
             "full_resolution": opts.full_resolution, "mirror_pass": opts.mirror_pass,
             "weights": str(opts.weights) if learned and opts.weights else None,
             "weights_digest": weights_digest(opts.weights) if learned else None,
-            "planesweep": asdict(opts.planesweep) if swept else None, "names": scan.names}
+            "planesweep": asdict(opts.planesweep) if swept else None, "names": scan.names,
+            **({"adapt": asdict(opts.adapt)} if learned and opts.adapt.steps else {})}
 
 
 def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple[DepthOptions, DepthEstimator]:
@@ -53,6 +55,17 @@ def _with_network(opts: DepthOptions, estimator: DepthEstimator | None) -> tuple
     if opts.depth_range is None and estimator.trained_depth_range is not None:
         opts = replace(opts, depth_range=estimator.trained_depth_range)
     return opts, estimator
+
+
+def _adapted(scan: Scan, opts: DepthOptions, estimator: DepthEstimator) -> tuple[DepthEstimator, dict]:
+    """An estimator whose network is fine-tuned on `scan` (`depth.adapt`); the given one stays as it was."""
+    cfg = estimator.config
+    net_scan = network_view(scan, cfg.image_width, cfg.image_height, opts.fit)
+    model, summary = adapted_copy(estimator.model, net_scan, scan_depth_range(scan, opts.depth_range), opts.adapt,
+                                  bf16=opts.precision == "bf16")
+    log.info("depth: network adapted to the scan in %d steps (%.0f s), photometric loss %.4f -> %.4f",
+             summary["steps"], summary["seconds"], summary["loss_start"], summary["loss_end"])
+    return DepthEstimator(model, estimator.device, estimator.trained_depth_range), summary
 
 
 def _results(scan: Scan, opts: DepthOptions, estimator: DepthEstimator | None, memory: TemporalMemory | None,
@@ -89,8 +102,11 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     elif resume and opts.mode in ("estm", "hybrid"):
         skip, memory = store.finished_prefix(scan.names, list(frame_sources(scan, opts.sources)), opts.memory_size,
                                              estimator.device)
-    store.begin()
     started = time.perf_counter()
+    adaptation = None
+    if opts.mode != "planesweep" and opts.adapt.steps:  # before anything is written: it may refuse the scan
+        estimator, adaptation = _adapted(scan, opts, estimator)
+    store.begin()
     results = _results(scan, opts, estimator, memory, skip)
     frames = {}
     for r in results:
@@ -107,7 +123,8 @@ def estimate_depth(scan: Scan, out_dir: str | os.PathLike, opts: DepthOptions = 
     seconds = time.perf_counter() - started
     summary = {**{k: v for k, v in store.settings.items() if k != "names"}, "settings": store.settings,
                "frames": frames, "skipped": [n for n in scan.names if n not in {f["name"] for f in frames}],
-               "seconds": seconds, "seconds_per_frame": seconds / max(len(frames) - len(skip), 1)}
+               "seconds": seconds, "seconds_per_frame": seconds / max(len(frames) - len(skip), 1),
+               **({"adaptation": adaptation} if adaptation else {})}
     if estimator is not None:  # the network's input: its size turned to the frames' orientation, the fit's effect
         cfg = estimator.config
         summary["view"] = describe_view(scan.intrinsics.size, cfg.image_width, cfg.image_height, opts.fit)

@@ -43,6 +43,30 @@ class PlaneSweepOptions:
     refine_agreement: bool = False  # `hybrid`: also ask the sources to agree (min_agreeing_sources, agreement_planes steps)
 
 
+@dataclass(frozen=True)
+class AdaptOptions:
+    """Test-time adaptation of the network to the scan (`depth.adapt`); the settings were chosen on the
+    held-out synthetic scans and ICL-NUIM, never on 7-Scenes."""
+
+    steps: int = 0  # optimiser steps; 0 = no adaptation
+    lr: float = 1e-5  # Adam; 2e-5 already lost on a held-out room
+    clip_length: int = 5  # as training: the middle clip_length - 2 frames are the targets
+    smoothness: float = 1e-3  # weight of the edge-aware smoothness
+    anchor: float = 0.0  # weight of the mean |log depth - log unadapted depth| (0: no pull back)
+    seed: int = 0  # order of the clips
+
+    def validate(self) -> "AdaptOptions":
+        if self.steps < 0:
+            raise ReconError(f"--adapt-steps must be >= 0, got {self.steps}")
+        if not 0 < self.lr < 1:
+            raise ReconError(f"--adapt-lr must be in (0, 1), got {self.lr}")
+        if self.anchor < 0 or self.smoothness < 0:
+            raise ReconError(f"adaptation weights must be >= 0, got anchor {self.anchor}, smoothness {self.smoothness}")
+        if self.clip_length < 3:
+            raise ReconError(f"adaptation clips need at least 3 frames, got {self.clip_length}")
+        return self
+
+
 @dataclass
 class FrameDepth:
     """One frame's result on its stored grid (`stored_size`: the scan's aspect, the working resolution)."""
@@ -74,6 +98,7 @@ class DepthOptions:
     mirror_pass: bool = False  # also run the left-right mirrored video; each pixel keeps the more confident depth (2x time)
     full_resolution: bool = False  # store maps at the scan's resolution instead of the working one (`stored_size`)
     planesweep: PlaneSweepOptions = field(default_factory=PlaneSweepOptions)
+    adapt: AdaptOptions = field(default_factory=AdaptOptions)  # test-time adaptation of the network (off by default)
 
     def validate(self) -> "DepthOptions":
         """Refuse bad values before any work (one line naming the option)."""
@@ -92,6 +117,8 @@ class DepthOptions:
         if self.mirror_pass and self.mode not in ("estm", "independent", "hybrid"):
             raise ReconError(f"--mirror-pass needs a network mode that runs frame by frame (estm, independent, "
                              f"hybrid), not {self.mode}")
+        if self.adapt.validate().steps and self.mode not in NETWORK_MODES + ("hybrid",):
+            raise ReconError(f"--adapt-steps adapts a network: mode {self.mode} runs none")
         self.sources.validate()
         return self
 

@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     p.add_argument("--start", type=int, default=0)
     p.add_argument("--max-frames", type=int, default=None)
     p.add_argument("--rows", default=",".join(DEFAULT_ROWS),
-                   help="comma-separated rows (planesweep, independent, joint, estm_m1, estm_m2, estm_m3, hybrid, estm_mirror, hybrid_mirror)")
+                   help="comma-separated rows (planesweep, independent, joint, estm_m1, estm_m2, estm_m3, hybrid, estm_mirror, hybrid_mirror, estm_adapted)")
     p.add_argument("--depth-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                    help="sweep range; default: the checkpoint's training range")
     p.add_argument("--out", default="runs/eval_7scenes", help="where depth maps and meshes go")

@@ -49,12 +49,26 @@ def test_recon_depth_and_train_refuse_bad_arguments(scan_dir, tmp_path, capsys):
     assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "planesweep",
                  "--depth-range", "4", "2"]) == 2
     assert "invalid depth range" in capsys.readouterr().err
+    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--adapt-steps", "-3"]) == 2
+    assert "--adapt-steps must be >= 0" in capsys.readouterr().err
+    assert main(["depth", str(scan_dir), "--out", str(tmp_path / "d"), "--mode", "planesweep", "--adapt-steps", "3"]) == 2
+    assert "adapts a network" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
     assert main(["train", str(scan_dir), "--out", str(tmp_path / "t"), "--config", "huge"]) == 2
     assert "unknown depth network config" in capsys.readouterr().err
     assert main(["train", "--out", str(tmp_path / "t")]) == 2
     assert "scans or --synthetic" in capsys.readouterr().err
     assert main(["train", "--synthetic", "--out", str(tmp_path / "t")]) == 2
     assert "--max-steps" in capsys.readouterr().err
+
+
+def test_recon_depth_adapts_the_shipped_network_to_the_scan(scan_dir, tmp_path, single_torch_thread):
+    out = tmp_path / "depth"
+    assert main(["-q", "depth", str(scan_dir), "--out", str(out), "--keyframe-distance", "0", "--adapt-steps", "2",
+                 "--precision", "fp32"]) == 0
+    summary = json.loads((out / "depth.json").read_text())
+    assert summary["weights"] == "compact" and summary["adaptation"]["steps"] == 2 and len(summary["frames"]) == 5
+    assert summary["adaptation"]["seconds"] > 0 and np.isfinite(summary["adaptation"]["loss_end"])
 
 
 def test_recon_bench_depth_json(capsys):
