@@ -30,6 +30,11 @@ def test_figures_are_rounded_with_units():
     assert values["peak memory"] == "880 MB" and values["total time"] == "2.7 min"
     assert values["mesh triangles"] == "37,400" and values["scale"] == "SfM units"
     assert values["frames posed by SfM"] == "118 of 120"
+    assert not any(label.startswith("network adapted") for label in values)
+    adapted = {"mode": "estm", "seconds_per_frame": 9.1,
+               "adaptation": {"steps": 60, "seconds": 258.4, "loss_start": 0.0612, "loss_end": 0.0498}}
+    values = {c["label"]: c["value"] for c in summary_cards({"stages": {"depth": adapted}}, 30, 30, True, None)}
+    assert values["network adapted to the scan (60 steps, included above)"] == "4.3 min, photometric loss 0.061 -> 0.050"
     table = metric_tables({"depth": {"abs_rel": 0.1234567, "a1": 0.8, "rmse": 0.5}}, "m")[0]
     assert [(r["label"], r["value"]) for r in table["rows"]] == [("Abs Rel", "0.1235"), ("δ < 1.25", "80.0 %"),
                                                                  ("RMSE", "0.500 m")]
