@@ -54,7 +54,7 @@ class TableOptions:
     sources: SourceConfig = field(default_factory=SourceConfig)  # how many sources each frame gets, and how far
     mesh: bool = True
     mesh_row: str = "estm_m2"
-    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror", "estm_adapted")  # also fused and scored, when run
+    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror", "estm_adapted", "hybrid_adapted")  # also fused and scored, when run
     voxel_size: float = 0.04
     mesh_depth_max: float = 4.0
     depth_filter: FilterConfig = field(default_factory=FilterConfig)  # what `recon run` fuses with by default
@@ -77,8 +77,9 @@ def row_options(row: str, opts: TableOptions):
         return DepthOptions(mode="planesweep", **common)
     if row in ("independent", "joint"):
         return DepthOptions(mode=row, weights=opts.weights, **common)
-    if row in ("hybrid", "hybrid_mirror"):
-        return DepthOptions(mode="hybrid", weights=opts.weights, mirror_pass=row == "hybrid_mirror", **common)
+    if row in ("hybrid", "hybrid_mirror", "hybrid_adapted"):
+        return DepthOptions(mode="hybrid", weights=opts.weights, mirror_pass=row == "hybrid_mirror",
+                            adapt=opts.adapt if row == "hybrid_adapted" else AdaptOptions(), **common)
     if row == "estm_mirror":
         return DepthOptions(mode="estm", weights=opts.weights, mirror_pass=True, **common)
     if row.startswith("estm_m"):
@@ -92,7 +93,7 @@ def row_options(row: str, opts: TableOptions):
 
 def label(row: str) -> str:
     named = {"estm_concat": "estm, concat fusion (memory 2)", "estm_mirror": "estm (memory 2), mirrored pass",
-             "hybrid_mirror": "hybrid, mirrored pass", "estm_adapted": "estm (memory 2), adapted to the scan"}
+             "hybrid_mirror": "hybrid, mirrored pass", "estm_adapted": "estm (memory 2), adapted to the scan", "hybrid_adapted": "hybrid, adapted to the scan"}
     if row not in named and row.startswith("estm_m"):
         return f"estm (memory {row[len('estm_m'):]})"
     return named.get(row, row)

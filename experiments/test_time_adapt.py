@@ -2,11 +2,11 @@
 
     python experiments/test_time_adapt.py --weights compact --cache runs/select_k35/scans --out runs/tta --steps 60
 
-For each held-out selection scan, ESTM (memory 2) runs as shipped and after test-time adaptation (the
-`estm` and `estm_adapted` rows of `experiments.results_7scenes`), each scored as selection scores it:
-Abs Rel, mesh F culled and unculled. The GT depth is read only by the scores. `--data FOLDER --stride N`
-runs one other scan instead (every N-th frame at 320x256): how 7-Scenes is reported with settings fixed
-on the held-out scans, never chosen on it.
+For each held-out selection scan, ESTM (memory 2; or `--mode hybrid`) runs as shipped and after test-time
+adaptation (the `estm_m2` and `estm_adapted` rows of `experiments.results_7scenes`, or `hybrid` and
+`hybrid_adapted`), each scored as selection scores it: Abs Rel, mesh F culled and unculled. The GT depth is
+read only by the scores. `--data FOLDER --stride N` runs one other scan instead (every N-th frame at
+320x256): how 7-Scenes is reported with settings fixed on the held-out scans, never chosen on it.
 """
 from __future__ import annotations
 
@@ -18,7 +18,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-ROWS = {"as shipped": "estm_m2", "adapted": "estm_adapted"}
+ROWS = {"estm": {"as shipped": "estm_m2", "adapted": "estm_adapted"},
+        "hybrid": {"as shipped": "hybrid", "adapted": "hybrid_adapted"}}
 
 
 def main(argv=None) -> int:
@@ -32,6 +33,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="order of the adaptation clips")
     p.add_argument("--anchor", type=float, default=0.0, help="weight of the pull back to the unadapted depth")
     p.add_argument("--precision", default="fp32", choices=("fp32", "bf16"))
+    p.add_argument("--mode", default="estm", choices=tuple(ROWS), help="the depth mode run as shipped and adapted")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--data", type=Path, default=None, help="one scan folder instead of the held-out scans")
     p.add_argument("--stride", type=int, default=10, help="with --data: every N-th frame")
@@ -47,7 +49,8 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     wanted = set(filter(None, args.scans.split(",")))
-    opts = TableOptions(weights=args.weights, rows=tuple(ROWS.values()), depth_range=trained_depth_range(args.weights),
+    pair = ROWS[args.mode]
+    opts = TableOptions(weights=args.weights, rows=tuple(pair.values()), depth_range=trained_depth_range(args.weights),
                         precision=args.precision, mesh=False,
                         adapt=AdaptOptions(steps=args.steps, lr=args.lr, seed=args.seed, anchor=args.anchor))
     scans = {args.data.name: open_scan(args.data).select(0, args.stride).resized(320, 256)} if args.data \
@@ -58,7 +61,7 @@ def main(argv=None) -> int:
             continue
         folder = args.out / scan_name
         rows = depth_table(scan, folder, opts, log=lambda s: print(f"{scan_name}: {s}", flush=True))["rows"]
-        for name, row in ROWS.items():
+        for name, row in pair.items():
             mesh = mesh_scores(scan, folder, TableOptions(mesh_row=row), log=lambda s: None)
             results.setdefault(scan_name, {})[name] = {
                 "abs_rel": rows[row]["abs_rel"], "mesh_f": mesh["fscore"], "mesh_f_unculled": unculled_fscore(folder, row),
