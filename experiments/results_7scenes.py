@@ -54,14 +54,15 @@ class TableOptions:
     sources: SourceConfig = field(default_factory=SourceConfig)  # how many sources each frame gets, and how far
     mesh: bool = True
     mesh_row: str = "estm_m2"
-    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror", "estm_adapted", "hybrid_adapted")  # also fused and scored, when run
+    mesh_baselines: tuple[str, ...] = ("planesweep", "hybrid", "estm_mirror", "hybrid_mirror", "estm_adapted",
+                                       "hybrid_adapted")  # also fused and scored, when run
     voxel_size: float = 0.04
     mesh_depth_max: float = 4.0
     depth_filter: FilterConfig = field(default_factory=FilterConfig)  # what `recon run` fuses with by default
     cleanup: MeshCleanup | None = field(default_factory=MeshCleanup)
     min_confidence: float | None = None  # fusion drops depth below this confidence (the filter's, when it checks)
     resume: bool = True
-    adapt: AdaptOptions = AdaptOptions(steps=60)  # the `estm_adapted` row's test-time adaptation (`depth.adapt`)
+    adapt: AdaptOptions = AdaptOptions(steps=60)  # the `*_adapted` rows' test-time adaptation (`depth.adapt`)
     extra: dict = field(default_factory=dict)
 
 
@@ -93,7 +94,8 @@ def row_options(row: str, opts: TableOptions):
 
 def label(row: str) -> str:
     named = {"estm_concat": "estm, concat fusion (memory 2)", "estm_mirror": "estm (memory 2), mirrored pass",
-             "hybrid_mirror": "hybrid, mirrored pass", "estm_adapted": "estm (memory 2), adapted to the scan", "hybrid_adapted": "hybrid, adapted to the scan"}
+             "hybrid_mirror": "hybrid, mirrored pass", "estm_adapted": "estm (memory 2), adapted to the scan",
+             "hybrid_adapted": "hybrid, adapted to the scan"}
     if row not in named and row.startswith("estm_m"):
         return f"estm (memory {row[len('estm_m'):]})"
     return named.get(row, row)

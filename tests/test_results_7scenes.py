@@ -73,3 +73,12 @@ def test_shipped_weights_load_and_describe_themselves():
     assert beats_sweep or beats_incumbent
     net = build_model(ck)  # every stored tensor fits; the frozen encoder part comes from its package
     assert all(torch.isfinite(p).all() for p in net.parameters())
+
+
+def test_adapted_rows_adapt_and_the_others_do_not():
+    from experiments.results_7scenes import TableOptions, row_options
+
+    opts = TableOptions(depth_range=(0.25, 6.0))
+    adapted = {row: row_options(row, opts) for row in ("estm_adapted", "hybrid_adapted")}
+    assert {(o.mode, o.adapt.steps) for o in adapted.values()} == {("estm", 60), ("hybrid", 60)}
+    assert all(row_options(row, opts).adapt.steps == 0 for row in ("estm_m2", "hybrid", "hybrid_mirror", "independent"))
