@@ -63,6 +63,7 @@ class TrainOptions:
     grad_weight: float = 0.0  # weight of the log-depth gradient term on the full-resolution output
     near_factor: float = 1.0  # depth too near weighs this many times depth too far (depth/loss.py)
     near_margin: float = 0.0  # ... only beyond this fraction of the truth (0: every near error)
+    hold_statistics: bool = False  # BatchNorm keeps its running statistics in training (ESTNet.hold_statistics)
     low_res: tuple[int, int] | None = None  # (width, height) of clips before `full_res_after`
     full_res_after: float = 0.7  # share of the horizon (steps or time) trained at low_res
     val_every: int = 1000  # steps; validation also runs at the end of every epoch
@@ -176,6 +177,8 @@ class Trainer:
             torch.cuda.set_device(self.device)
         torch.manual_seed(opts.seed + self.rank)
         self.model = ESTNet(cfg)
+        if opts.hold_statistics:
+            self.model.hold_statistics()
         if opts.backbone:
             self.model.context.load_backbone(opts.backbone)
         self.model.to(self.device).train()

@@ -7,6 +7,7 @@ import torch
 from depth.checkpoint import load_checkpoint
 from depth.config import TINY
 from depth.data import ClipDataset, ClipOptions, ShapeBatches, StreamingClips
+from depth.model import ESTNet
 from recon.plane_scene import plane_scan
 from depth.train import TrainOptions, train
 from recon.errors import ReconError
@@ -146,6 +147,25 @@ def test_resume_continues_exactly(tmp_path):
         assert torch.equal(v, b.state_dict[k]), k
     with pytest.raises(ReconError, match="no training state"):
         train(data, tmp_path / "c", _quiet(max_steps=1), model_config=TINY, resume=straight.model_path)
+
+
+def test_held_statistics_stay_while_the_weights_train(tmp_path):
+    """--hold-statistics: BatchNorm normalises with its running statistics in training, so they never move."""
+    data = ClipDataset([plane_scan(5, 96, 64, step=0.08)], CLIP)
+    trained = {}
+    for held in (False, True):
+        torch.manual_seed(0)
+        result = train(data, tmp_path / str(held), _quiet(max_steps=3, lr=1e-3, hold_statistics=held),
+                       model_config=TINY)
+        trained[held] = load_checkpoint(result.model_path).state_dict
+    means = [k for k in trained[True] if k.endswith("running_mean")]
+    assert means and all(not trained[True][k].any() for k in means)  # still the fresh zeros
+    assert any(trained[False][k].abs().max() > 1e-3 for k in means)  # a plain run moves them
+    torch.manual_seed(0)
+    fresh = ESTNet(TINY).state_dict()
+    moved = [k for k, v in trained[True].items() if v.is_floating_point() and "running" not in k
+             and not torch.equal(v, fresh[k])]
+    assert len(moved) > len(means)  # convolutions and BatchNorm's affine parameters still learn
 
 
 def test_recalibrated_batchnorm_holds_the_plain_mean_over_its_batches():

@@ -54,32 +54,7 @@ def add_arguments(p) -> None:
     stop.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC wall-clock time (next occurrence)")
     stop.add_argument("--minutes", type=float, default=None, help="wall-clock minutes from now")
     stop.add_argument("--epochs", type=int, default=10, help="passes over the scans (default 10)")
-    opt = p.add_argument_group("optimisation")
-    opt.add_argument("--schedule", choices=("step", "cosine"), default="cosine",
-                     help="lr: 'step' halves every --lr-halve-every epochs (paper); 'cosine' warms up, then decays "
-                          "to --min-lr-ratio over the horizon (default cosine)")
-    opt.add_argument("--lr", type=float, default=5e-4, help="peak learning rate (default 5e-4; paper 4e-5)")
-    opt.add_argument("--min-lr-ratio", type=float, default=0.05, help="cosine: final lr / lr (default 0.05)")
-    opt.add_argument("--warmup-steps", type=int, default=50, help="cosine: warm-up steps (default 50)")
-    opt.add_argument("--lr-halve-every", type=int, default=2, metavar="EPOCHS", help="step schedule (default 2)")
-    opt.add_argument("--encoder-lr-scale", type=float, default=0.1,
-                     help="lr factor of the pretrained encoder's trainable blocks (default 0.1)")
-    opt.add_argument("--weight-decay", type=float, default=1e-5)
-    opt.add_argument("--grad-clip", type=float, default=5.0, help="gradient-norm clip (default 5; 0 = off)")
-    opt.add_argument("--loss", choices=("l1", "log_l1"), default="l1",
-                     help="per-pixel error: l1 in metres (paper; the default: lower held-out Abs Rel than log-L1, "
-                          "docs/model_card.md lite_v15) or l1 of log depth")
-    opt.add_argument("--grad-weight", type=float, default=0.0, metavar="W",
-                     help="add W x the multi-scale gradient of the log-depth error of the full-resolution "
-                          "output, which rewards edges where the ground truth has them (default 0: off)")
-    opt.add_argument("--near-factor", type=float, default=1.0, metavar="F",
-                     help="weigh depth that is too near F times as much as depth too far: fusion turns it into "
-                          "surfaces in front of the true ones, which the mesh evaluation never culls (default 1: "
-                          "symmetric)")
-    opt.add_argument("--near-margin", type=float, default=0.0, metavar="M",
-                     help="apply --near-factor only to the part of a near error beyond the fraction M of the "
-                          "true depth, so small errors and the map's scale keep the symmetric loss (default 0)")
-    opt.add_argument("--batch-size", type=int, default=1)
+    _add_optimisation_arguments(p)
     data = p.add_argument_group("data")
     data.add_argument("--low-res", default="160x128", metavar="WxH",
                       help="clip size before --full-res-after (default 160x128; 'none' = always the config's)")
@@ -115,6 +90,38 @@ def add_arguments(p) -> None:
     run_.add_argument("--workers", type=int, default=0,
                       help="data loader worker processes (with --synthetic each renders rooms of its own)")
     p.set_defaults(func=run)
+
+
+def _add_optimisation_arguments(p) -> None:
+    opt = p.add_argument_group("optimisation")
+    opt.add_argument("--schedule", choices=("step", "cosine"), default="cosine",
+                     help="lr: 'step' halves every --lr-halve-every epochs (paper); 'cosine' warms up, then decays "
+                          "to --min-lr-ratio over the horizon (default cosine)")
+    opt.add_argument("--lr", type=float, default=5e-4, help="peak learning rate (default 5e-4; paper 4e-5)")
+    opt.add_argument("--min-lr-ratio", type=float, default=0.05, help="cosine: final lr / lr (default 0.05)")
+    opt.add_argument("--warmup-steps", type=int, default=50, help="cosine: warm-up steps (default 50)")
+    opt.add_argument("--lr-halve-every", type=int, default=2, metavar="EPOCHS", help="step schedule (default 2)")
+    opt.add_argument("--encoder-lr-scale", type=float, default=0.1,
+                     help="lr factor of the pretrained encoder's trainable blocks (default 0.1)")
+    opt.add_argument("--weight-decay", type=float, default=1e-5)
+    opt.add_argument("--grad-clip", type=float, default=5.0, help="gradient-norm clip (default 5; 0 = off)")
+    opt.add_argument("--loss", choices=("l1", "log_l1"), default="l1",
+                     help="per-pixel error: l1 in metres (paper; the default: lower held-out Abs Rel than log-L1, "
+                          "docs/model_card.md lite_v15) or l1 of log depth")
+    opt.add_argument("--grad-weight", type=float, default=0.0, metavar="W",
+                     help="add W x the multi-scale gradient of the log-depth error of the full-resolution "
+                          "output, which rewards edges where the ground truth has them (default 0: off)")
+    opt.add_argument("--near-factor", type=float, default=1.0, metavar="F",
+                     help="weigh depth that is too near F times as much as depth too far: fusion turns it into "
+                          "surfaces in front of the true ones, which the mesh evaluation never culls (default 1: "
+                          "symmetric)")
+    opt.add_argument("--near-margin", type=float, default=0.0, metavar="M",
+                     help="apply --near-factor only to the part of a near error beyond the fraction M of the "
+                          "true depth, so small errors and the map's scale keep the symmetric loss (default 0)")
+    opt.add_argument("--hold-statistics", action="store_true",
+                     help="every BatchNorm normalises with its running statistics in training as at inference, "
+                          "so a batch-1 fine-tune does not drag them towards its last clip (default: off)")
+    opt.add_argument("--batch-size", type=int, default=1)
 
 
 def deadline_time(args: argparse.Namespace) -> float | None:
@@ -258,6 +265,7 @@ def run(args: argparse.Namespace) -> int:
         lr_halve_every=args.lr_halve_every, warmup_steps=args.warmup_steps, min_lr_ratio=args.min_lr_ratio,
         encoder_lr_scale=args.encoder_lr_scale, grad_clip=args.grad_clip or None, loss=args.loss,
         grad_weight=args.grad_weight, near_factor=args.near_factor, near_margin=args.near_margin,
+        hold_statistics=args.hold_statistics,
         low_res=_size(args.low_res), full_res_after=args.full_res_after, val_every=args.val_every,
         checkpoint_every=args.checkpoint_every, log_every=args.log_every,
         amp=None if args.amp == "off" else args.amp, compile=args.compile, device=args.device,

@@ -59,6 +59,7 @@ class ESTNet(nn.Module):
     def __init__(self, cfg: ESTConfig, pretrained: bool = True):
         super().__init__()
         self.cfg = cfg
+        self.statistics_held = False  # see hold_statistics
         if cfg.encoder == "resnet":
             self.encoder = None
             self.features = SPPFeatures(cfg)
@@ -94,13 +95,22 @@ class ESTNet(nn.Module):
                 module.requires_grad_(False)
 
     def train(self, mode: bool = True) -> "ESTNet":
-        """As nn.Module.train, but the pretrained encoder's BatchNorm statistics never move."""
+        """As nn.Module.train, but the pretrained encoder's BatchNorm statistics never move, nor any other's
+        once `hold_statistics` was called."""
         super().train(mode)
-        if self.encoder is not None:
-            for module in self.encoder.modules():
-                if isinstance(module, nn.BatchNorm2d):
+        held = self if self.statistics_held else self.encoder
+        if held is not None:
+            for module in held.modules():
+                if isinstance(module, (nn.BatchNorm2d, nn.BatchNorm3d)):
                     module.eval()
         return self
+
+    def hold_statistics(self) -> "ESTNet":
+        """Every BatchNorm normalises with its running statistics from now on, in training too: a batch-1
+        fine-tune then trains the network inference runs, instead of dragging the statistics towards its
+        last clip (docs/depth.md, "BatchNorm statistics"). Affine parameters still train."""
+        self.statistics_held = True
+        return self.train(self.training)
 
     def pretrained_keys(self) -> set[str]:
         """State-dict keys that come from the encoder package, not from our checkpoints."""
