@@ -22,17 +22,19 @@ def stage_maps(estimator, scan, opts) -> dict[int, list]:
     """Frame index -> [D0..D3] on the scan's pixels, from one ESTM pass."""
     from depth import estimator as est_module
 
-    maps, result = {}, est_module._Pass.result
+    maps, step = {}, est_module.DepthEstimator._step
 
-    def keep_stages(run, i, out):
-        maps[i] = [est_module.to_scan_pixels(d, run.net_scan, run.output_size)[0, 0].numpy() for d in out.depths]
-        return result(run, i, out)
+    def keep_stages(run, memory, i, mode):
+        out = step(run, memory, i, mode)
+        if not run.mirrored:
+            maps[i] = [est_module.to_scan_pixels(d, run.net_scan, run.output_size)[0, 0].numpy() for d in out.depths]
+        return out
 
-    est_module._Pass.result = keep_stages
+    est_module.DepthEstimator._step = staticmethod(keep_stages)
     try:
         list(estimator.run(scan, opts))
     finally:
-        est_module._Pass.result = result
+        est_module.DepthEstimator._step = staticmethod(step)
     return maps
 
 
