@@ -67,8 +67,9 @@ def add_sfm(parser) -> None:
     g.add_argument("--max-size", type=int, default=_default(IngestConfig, "max_size"), metavar="PX",
                    help="long side of the working images")
     g.add_argument("--no-fallback", action="store_true",
-                   help="do not retry when the first mapping registers too few frames (other mapper, looser "
-                        "initial pair, other camera model, all-pairs matching)")
+                   help="map once: no retry when the first mapping registers too few frames (other mapper, looser "
+                        "initial pair, other camera model, all-pairs matching), and no comparison of the mappers on "
+                        "a short clip")
     g.add_argument("--features", type=int, default=_default(SfMConfig, "max_num_features"), metavar="N",
                    help="SIFT features per image")
     g.add_argument("--overlap", type=int, default=_default(SfMConfig, "sequential_overlap"), metavar="N",

@@ -82,7 +82,7 @@ class SfMConfig:
     sequential_overlap: int = 10  # each frame is matched with this many following frames
     loop_detection: bool = True  # sequential matching: also match far-apart frames that look alike (retrieval.py)
     loop_candidates: int = 3  # per frame, its most similar far-apart frames to verify
-    exhaustive_below: int = 40  # clips with at most this many frames are matched all-pairs
+    exhaustive_below: int = 40  # clips with at most this many frames are matched all-pairs and mapped with every attempt
     exhaustive_max: int = 300  # photo collections (and the last fallback) up to this many images: all pairs
     min_registered_fraction: float = 0.5  # a model with fewer frames is a failure
     min_parallax: float = 0.003  # homography_parallax below this: the camera only turned, refuse before mapping
@@ -132,6 +132,7 @@ class SfMResult:
     database_path: Path
     model_dir: Path  # the kept model on disk
     attempts: list[dict] = field(default_factory=list)  # [{"attempt": label, "registered": n}] in the order run
+    # (a short clip's also "agreeing_inliers": _map_most_agreed)
     camera: dict = field(default_factory=dict)  # the estimated camera, for the report
     parallax: float = 0.0  # homography_parallax of the matches
     matcher: str = ""  # "sequential" or "exhaustive" (the first matching)
@@ -411,8 +412,8 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     loops = match_features(database_path, matcher, config, timings)
     parallax = _check_parallax(database_path, image_dir, work_dir, config, n)
     attempts: list[dict] = []
-    best = _map_until_enough(database_path, image_dir, work_dir, mapping_plan(config), config,
-                             timings, attempts, n)
+    short_clip = config.fallback and ordered and n <= config.exhaustive_below
+    best = _first_mapping(database_path, image_dir, work_dir, config, timings, attempts, n, short_clip)
     if config.fallback and matcher == "sequential" and n <= config.exhaustive_max and best[0] < config.retry_below * n:
         log.info("sfm: matching all pairs of the %d frames and mapping again", n)
         match_features(database_path, "exhaustive", config, timings)
@@ -639,6 +640,57 @@ def _map_until_enough(database_path: Path, image_dir: Path, work_dir: Path, plan
         log.info("sfm: %s registered %d of %d frames", attempt.label, registered, n)
         if best[0] >= config.retry_below * n:
             break
+    return best
+
+
+def _first_mapping(database_path: Path, image_dir: Path, work_dir: Path, config: SfMConfig,
+                   timings: dict[str, float], attempts: list[dict], n: int, short_clip: bool) -> tuple:
+    """The plan's attempts until one registers enough; for a short clip, every attempt with the first's camera
+    model, compared by agreement (_map_most_agreed), and the other camera model only when none registers
+    enough (a radial model is kept only where the distortion test or the user asks for it)."""
+    plan = mapping_plan(config)
+    if not short_clip:
+        return _map_until_enough(database_path, image_dir, work_dir, plan, config, timings, attempts, n)
+    same_camera = [a for a in plan if a.distortion == plan[0].distortion]
+    best = _map_most_agreed(database_path, image_dir, work_dir, same_camera, config, timings, attempts, n)
+    other_camera = [a for a in plan if a not in same_camera]
+    if max(row["registered"] for row in attempts) < config.retry_below * n and other_camera:
+        best = max(best, _map_until_enough(database_path, image_dir, work_dir, other_camera, config, timings,
+                                           attempts, n), key=lambda b: b[0])
+    return best
+
+
+def _map_most_agreed(database_path: Path, image_dir: Path, work_dir: Path, plan: list[MappingAttempt],
+                     config: SfMConfig, timings: dict[str, float], attempts: list[dict], n: int) -> tuple:
+    """A short clip: run every attempt of the plan and keep the model whose matched pairs' own geometry agrees
+    with it most (agreeing_inliers). A walk of a few seconds constrains the focal length weakly, and each
+    mapper can settle on a bent model that registers every frame (docs/poses.md); the pairs tell them apart.
+
+    Returns the kept (registered, attempt, model dir, Reconstruction); the first wins a tie, and a model under
+    `min_registered_fraction` of the frames never wins over one above it.
+    """
+    enough = max(3, int(np.ceil(config.min_registered_fraction * n)))
+    best, best_key = (0, plan[0], None, None), (False, -1)
+    for attempt in plan:
+        out = work_dir / "sparse" / attempt.label
+        try:
+            models = map_images(database_path, image_dir, out, attempt, config, timings)
+        except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
+            log.warning("sfm: %s mapping failed: %s", attempt.label, exc)
+            models = {}
+        row = {"attempt": attempt.label, "registered": 0}
+        if models:
+            index, rec = _largest_model(models)
+            t0 = time.perf_counter()
+            agreeing = agreeing_inliers(pair_residuals(rec, photo_pairs(rec, database_path)))
+            timings["compare_attempts"] = timings.get("compare_attempts", 0.0) + time.perf_counter() - t0
+            row.update(registered=rec.num_reg_images(), agreeing_inliers=agreeing)
+            key = (row["registered"] >= enough, agreeing)
+            if key > best_key:
+                best, best_key = (row["registered"], attempt, out / str(index), rec), key
+        attempts.append(row)
+        log.info("sfm: %s registered %d of %d frames (%s agreeing inliers)", attempt.label, row["registered"], n,
+                 row.get("agreeing_inliers", 0))
     return best
 
 
