@@ -579,11 +579,8 @@ def map_without_gross_pairs(first: KeptModel, database_path: Path, image_dir: Pa
         return first, report
     pruned_db = copy_database_without(database_path, work_dir / "database_pruned.db", gross)
     out = work_dir / "sparse" / f"{attempt.label}-pruned"
-    try:
-        models = map_images(pruned_db, image_dir, out, attempt, config, timings)
-    except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
-        log.warning("sfm: mapping without the pairs far off the first model failed: %s", exc)
-        models = {}
+    models = _models_or_none(pruned_db, image_dir, out, attempt, config, timings,
+                             "mapping without the pairs far off the first model")
     if not models:
         return first, report
     index, rec = _largest_model(models)
@@ -601,6 +598,16 @@ def map_without_gross_pairs(first: KeptModel, database_path: Path, image_dir: Pa
     log.info("sfm: kept the mapping without %d of %d pairs far off the first model (%d against %d agreeing inliers)",
              len(gross), len(residuals), second_inliers, first_inliers)
     return second, report
+
+
+def _models_or_none(database_path: Path, image_dir: Path, out: Path, attempt: MappingAttempt, config: SfMConfig,
+                    timings: dict[str, float], what: str) -> dict:
+    """map_images, with a mapper failure logged as `what` failed and returned as no models."""
+    try:
+        return map_images(database_path, image_dir, out, attempt, config, timings)
+    except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
+        log.warning("sfm: %s failed: %s", what, exc)
+        return {}
 
 
 def _check_parallax(database_path: Path, image_dir: Path, work_dir: Path, config: SfMConfig, n: int) -> float:
@@ -625,11 +632,7 @@ def _map_until_enough(database_path: Path, image_dir: Path, work_dir: Path, plan
     best: tuple = (0, plan[0], None, None)
     for attempt in plan:
         out = work_dir / "sparse" / attempt.label
-        try:
-            models = map_images(database_path, image_dir, out, attempt, config, timings)
-        except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
-            log.warning("sfm: %s mapping failed: %s", attempt.label, exc)
-            models = {}
+        models = _models_or_none(database_path, image_dir, out, attempt, config, timings, f"{attempt.label} mapping")
         registered = 0
         if models:
             index, rec = _largest_model(models)
@@ -673,11 +676,7 @@ def _map_most_agreed(database_path: Path, image_dir: Path, work_dir: Path, plan:
     best, best_key = (0, plan[0], None, None), (False, -1)
     for attempt in plan:
         out = work_dir / "sparse" / attempt.label
-        try:
-            models = map_images(database_path, image_dir, out, attempt, config, timings)
-        except (RuntimeError, ValueError) as exc:  # pycolmap reports mapper failures as plain exceptions
-            log.warning("sfm: %s mapping failed: %s", attempt.label, exc)
-            models = {}
+        models = _models_or_none(database_path, image_dir, out, attempt, config, timings, f"{attempt.label} mapping")
         row = {"attempt": attempt.label, "registered": 0}
         if models:
             index, rec = _largest_model(models)
