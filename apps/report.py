@@ -177,6 +177,13 @@ def sfm_section(scan) -> dict | None:
             ("observations per image", sfm.get("mean_observations_per_image"), "points each image sees"),
             ("camera", (sfm.get("camera") or {}).get("model"), "the shared camera model SfM refined"),
             ("parallax", sfm.get("parallax"), "median homography parallax of the matched pairs")]
+    compared = [a for a in sfm.get("attempts") or [] if "agreeing_inliers" in a]
+    if len(compared) > 1:
+        kept = Path(sfm.get("model_dir", "")).parent.name
+        rows.append(("mappers compared", "; ".join(
+            f"{a['attempt']}{' (kept)' if a['attempt'] == kept else ''}: {a['registered']} frames, "
+            f"{a['agreeing_inliers']} agreeing inliers" for a in compared),
+            "a short clip is mapped by each mapper, and the model more matched pairs agree with is kept"))
     pruning = sfm.get("pair_pruning") or {}
     if pruning.get("pruned"):
         rows.append(("pairs far off the model", f"{pruning['pruned']} of {pruning['pairs']}; kept the "

@@ -124,3 +124,16 @@ def test_sfm_section_says_which_mapping_of_a_photo_folder_was_kept():
     assert rows["pairs far off the model"] == "467 of 905; kept the second mapping, without them"
     scan.metadata.extra["sfm"]["pair_pruning"] = {"pairs": 343, "pruned": 0, "kept": "first"}
     assert "pairs far off the model" not in [r["label"] for r in sfm_section(scan)["rows"]]
+
+
+def test_sfm_section_says_which_mapper_a_short_clip_kept():
+    scan = box_room_scan(n_frames=4)
+    scan.metadata.extra["sfm"] = {
+        "mapper": "global", "registered": 40, "unregistered": [], "model_dir": "/x/colmap/sparse/global-pinhole/0",
+        "attempts": [{"attempt": "incremental-pinhole", "registered": 40, "agreeing_inliers": 19308},
+                     {"attempt": "global-pinhole", "registered": 40, "agreeing_inliers": 41732}]}
+    rows = dict((r["label"], r["value"]) for r in sfm_section(scan)["rows"])
+    assert rows["mappers compared"] == ("incremental-pinhole: 40 frames, 19308 agreeing inliers; "
+                                        "global-pinhole (kept): 40 frames, 41732 agreeing inliers")
+    scan.metadata.extra["sfm"]["attempts"] = [{"attempt": "incremental-pinhole", "registered": 40}]
+    assert "mappers compared" not in [r["label"] for r in sfm_section(scan)["rows"]]  # one attempt: nothing compared
