@@ -41,11 +41,11 @@ def sampson_px(x_a: np.ndarray, x_b: np.ndarray, e: np.ndarray, focal: float) ->
 def pair_measures(rec, database_path: Path) -> dict[str, dict[str, float]]:
     """Per posed image: inliers over its pairs, the agreeing-pair share and the explained-match share."""
     from poses.placement import agrees
-    from poses.sfm import _cam_from_world, pair_residuals, photo_pairs
+    from poses.sfm import _cam_from_world, pair_residuals, posed_pairs
 
     cam = next(iter(rec.cameras.values()))
     images = {im.name: im for im in rec.images.values() if im.has_pose}
-    pairs = photo_pairs(rec, database_path)
+    pairs = posed_pairs(rec, database_path)
     sums: dict[str, np.ndarray] = {}
     for (a, b, pixels_a, pixels_b), (_, _, n, rotation, direction) in zip(pairs, pair_residuals(rec, pairs)):
         m = np.asarray((_cam_from_world(images[b]) * _cam_from_world(images[a]).inverse()).matrix())

@@ -26,7 +26,7 @@ def main() -> None:
 
     from poses.evaluate import pose_metrics
     from poses.sfm import (MappingAttempt, SfMConfig, SfMResult, agreeing_inliers, copy_database_without,
-                           distortion_test, drop_misplaced_photos, map_images, pair_residuals, photo_pairs, scan_from_sfm)
+                           distortion_test, drop_misplaced_photos, map_images, pair_residuals, posed_pairs, scan_from_sfm)
     from recon.readers import open_scan
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -40,7 +40,7 @@ def main() -> None:
         gt = open_scan(root / "ground_truth")
         first = pycolmap.Reconstruction(report["model_dir"])
         database = Path(report["colmap_dir"]) / "database.db"
-        residuals = pair_residuals(first, photo_pairs(first, database))
+        residuals = pair_residuals(first, posed_pairs(first, database))
         gross = [(a, b) for a, b, _, r, d in residuals if r > args.rotation or d > args.direction]
         work = root / "remap"
         shutil.rmtree(work, ignore_errors=True)
@@ -51,7 +51,7 @@ def main() -> None:
         timings: dict = {}
         models = map_images(work / "database.db", run / "frames", work / "sparse", attempt, config, timings)
         rec, _ = distortion_test(max(models.values(), key=lambda r: r.num_reg_images()), config, timings)
-        dropped = drop_misplaced_photos(rec, pair_residuals(rec, photo_pairs(rec, work / "database.db")))
+        dropped = drop_misplaced_photos(rec, pair_residuals(rec, posed_pairs(rec, work / "database.db")))
         names = sorted(im.name for im in rec.images.values() if im.has_pose)
         result = SfMResult(rec, run / "frames", "incremental", names, [], timings, work, work / "database.db",
                            work / "sparse", [], {}, 0.0, "exhaustive", displaced=dropped)
@@ -59,7 +59,7 @@ def main() -> None:
         before = pose_metrics(open_scan(run), gt)
         after = pose_metrics(scan, gt)
 
-        kept_first, kept_second = (agreeing_inliers(pair_residuals(m, photo_pairs(m, database))) for m in (first, rec))
+        kept_first, kept_second = (agreeing_inliers(pair_residuals(m, posed_pairs(m, database))) for m in (first, rec))
         chosen = after if kept_second > kept_first else before
         print(f"{root.name:18} pairs removed {len(gross)}/{len(residuals)}  first: {before['registered'] * 50:.0f} "
               f"registered, ATE {100 * before['ate_rmse']:.1f} cm, agreeing {kept_first}  remapped: {len(names)} "

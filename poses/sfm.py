@@ -470,7 +470,7 @@ def drop_displaced_blocks(rec, image_names: list[str]) -> list[str]:
     return names
 
 
-def photo_pairs(rec, database_path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+def posed_pairs(rec, database_path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
     """The verified pairs of posed images with at least MIN_INLIERS inliers, as (name a, name b, (N, 2) pixel
     positions in a, (N, 2) in b) of their inlier matches, in COLMAP's pixel convention."""
     pycolmap = _pycolmap()
@@ -493,7 +493,7 @@ PairResidual = tuple[str, str, int, float, float]  # name a, name b, inliers, ro
 
 def pair_residuals(rec, pairs: list[tuple[str, str, np.ndarray, np.ndarray]]) -> list[PairResidual]:
     """(name a, name b, inliers, rotation and travel-direction residuals in degrees) for each of `pairs` (as
-    photo_pairs gives them): how far the pair's own relative pose, from its inliers through the model's camera,
+    posed_pairs gives them): how far the pair's own relative pose, from its inliers through the model's camera,
     is from the model's (poses/placement.py); 180, 180 when the inliers give no pose."""
     images = {im.name: im for im in rec.images.values() if im.has_pose}
     cam = next(iter(rec.cameras.values()))
@@ -542,7 +542,7 @@ def checked_model(rec, model_dir: Path, distortion: dict, database_path: Path, c
     Unposing a photo moves no other, so the residuals of the pairs left are those measured before the check."""
     if not (config.placement_check or config.pair_pruning):
         return KeptModel(rec, model_dir, distortion, [], [])
-    residuals = pair_residuals(rec, photo_pairs(rec, database_path))
+    residuals = pair_residuals(rec, posed_pairs(rec, database_path))
     displaced = drop_misplaced_photos(rec, residuals) if config.placement_check else []
     left = set(displaced)
     return KeptModel(rec, model_dir, distortion, displaced,
@@ -681,7 +681,7 @@ def _map_most_agreed(database_path: Path, image_dir: Path, work_dir: Path, plan:
         if models:
             index, rec = _largest_model(models)
             t0 = time.perf_counter()
-            agreeing = agreeing_inliers(pair_residuals(rec, photo_pairs(rec, database_path)))
+            agreeing = agreeing_inliers(pair_residuals(rec, posed_pairs(rec, database_path)))
             timings["compare_attempts"] = timings.get("compare_attempts", 0.0) + time.perf_counter() - t0
             row.update(registered=rec.num_reg_images(), agreeing_inliers=agreeing)
             key = (row["registered"] >= enough, agreeing)
