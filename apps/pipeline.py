@@ -465,7 +465,7 @@ class Pipeline:
                                   align="median" if align == "median" else "none", scale=scale)
         d["align"] = align
         return {"depth": {k: d[k] for k in ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3",
-                                           "within_5cm", "edge_precision", "edge_recall", "edge_f", "coverage", "median_ratio",
+                                           "within_5cm", "near_5cm", "edge_precision", "edge_recall", "edge_f", "coverage", "median_ratio",
                                            "frames", "min_depth", "max_depth", "align")},
                 "temporal": {k: d[k] for k in ("mae_mean", "mae_std", "flicker")},
                 "depth_per_frame": d["per_frame"]}

@@ -36,6 +36,8 @@ METRICS = {
     "a2": ("δ < 1.25²", "share of pixels with max(d/d*, d*/d) < 1.5625", "share"),
     "a3": ("δ < 1.25³", "share of pixels with max(d/d*, d*/d) < 1.953", "share"),
     "within_5cm": ("within 5 cm", "share of pixels whose depth is within 5 cm (the mesh score's threshold)", "share"),
+    "near_5cm": ("over 5 cm near", "share of pixels whose depth is more than 5 cm too near: surfaces in front of the true ones",
+                 "share"),
     "edge_precision": ("edge precision", "share of predicted occluding edges (a >10 % depth jump between neighbours) "
                        "within 2 px of a true one", "share"),
     "edge_recall": ("edge recall", "share of true occluding edges with a predicted one within 2 px", "share"),

@@ -7,7 +7,10 @@ free pass) and `coverage` says which share of those pixels had a prediction. `me
 (median of prediction / GT over the covered pixels) is the scale bias: 1 for a metric network
 whose depth is neither too near nor too far overall. `within_5cm` is the share of pixels whose
 depth is within the mesh score's 5 cm: δ<1.25 calls a 40 cm error at 2 m right, a fused surface
-does not, so two networks can rank one way on Abs Rel and δ and the other way on the mesh.
+does not, so two networks can rank one way on Abs Rel and δ and the other way on the mesh. `near_5cm` is the
+share more than 5 cm too near: fused, those pixels make surfaces in front of the true ones, which a visibility-culled
+mesh score charges while it drops surfaces behind them, so of two maps with the same `within_5cm` the one whose
+misses lean near has the less precise mesh (docs/depth.md, "Same depth error, different mesh").
 `edge_precision`, `edge_recall` and `edge_f` say whether the depth follows the scene's occluding edges:
 a map that blurs a chair into the wall behind it scores well on Abs Rel and near zero here.
 """
@@ -17,7 +20,7 @@ import numpy as np
 
 from recon.geometry import mark_neighbour_pairs, reproject_depth
 
-DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "within_5cm")
+DEPTH_KEYS = ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3", "within_5cm", "near_5cm")
 SURFACE_TOLERANCE = 0.05  # metres: the mesh F-score's threshold, so `within_5cm` reads as the depth the mesh can use
 EDGE_JUMP = 1.1  # a depth ratio above this between 4-neighbours is an occluding edge (a slanted wall: a few %)
 EDGE_TOLERANCE_PX = 2  # an edge found within this many pixels of the true one counts as found
@@ -47,6 +50,7 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, min_depth: float = 1e-3,
         "a2": float(np.mean(ratio < 1.25 ** 2)),
         "a3": float(np.mean(ratio < 1.25 ** 3)),
         "within_5cm": float(np.mean(np.abs(diff) < SURFACE_TOLERANCE)),
+        "near_5cm": float(np.mean(diff <= -SURFACE_TOLERANCE)),
         "coverage": float(np.mean(covered)),
         "median_ratio": float(np.median(raw[covered] / gt[covered])) if covered.any() else float("nan"),
     }

@@ -30,7 +30,8 @@ from recon.scan import Scan
 PAPER_7SCENES = {"abs_rel": 0.1465, "abs": 0.2528, "sq_rel": 0.0729, "rmse": 0.3382, "a1": 0.8036}
 
 COLUMNS = (("abs_rel", "Abs Rel", "{:.4f}"), ("abs", "Abs", "{:.4f}"), ("sq_rel", "Sq Rel", "{:.4f}"),
-           ("rmse", "RMSE", "{:.4f}"), ("a1", "δ<1.25", "{:.2%}"), ("within_5cm", "within 5 cm", "{:.1%}"), ("edge_f", "edge F", "{:.3f}"),
+           ("rmse", "RMSE", "{:.4f}"), ("a1", "δ<1.25", "{:.2%}"), ("within_5cm", "within 5 cm", "{:.1%}"),
+           ("near_5cm", "over 5 cm near", "{:.1%}"), ("edge_f", "edge F", "{:.3f}"),
            ("mae_std", "mae_std", "{:.4f}"),
            ("flicker", "flicker", "{:.4f}"), ("coverage", "coverage", "{:.1%}"),
            ("abs_rel_covered", "Abs Rel (covered px)", "{:.4f}"),

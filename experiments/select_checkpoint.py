@@ -155,7 +155,7 @@ def main(argv=None) -> int:
             for row, m in res["rows"].items():
                 key = "planesweep" if row == "planesweep" else f"{name}:{row}"
                 summary.setdefault(key, {})[scan_name] = {k: m[k] for k in
-                                                          ("abs_rel", "abs", "rmse", "a1", "within_5cm", "edge_f", "flicker", "coverage", "abs_rel_covered",
+                                                          ("abs_rel", "abs", "rmse", "a1", "within_5cm", "near_5cm", "edge_f", "flicker", "coverage", "abs_rel_covered",
                                                            "median_ratio", "seconds_per_frame")}
                 mesh = mesh_scores(scan, out / name / scan_name, TableOptions(mesh_row=row),
                                    log=lambda s: print(f"{name} {scan_name}: {s}"))

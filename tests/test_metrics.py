@@ -81,6 +81,8 @@ def test_depth_metrics_known_values():
     near[:, :1] += 0.04
     near[:, 1:2] -= 0.06
     assert depth_metrics(near, gt)["within_5cm"] == 0.75 and depth_metrics(near, gt)["a1"] == 1.0
+    assert depth_metrics(near, gt)["near_5cm"] == 0.25  # the column 6 cm too near; 4 cm too far is within
+    assert depth_metrics(gt * 0.9, gt)["near_5cm"] == 1.0 and m["near_5cm"] == 0.0  # 20 cm too near; 20 cm too far
     m = depth_metrics(gt * 1.5, gt)
     assert m["a1"] == 0 and m["a2"] == 1
     pred = gt.copy()
