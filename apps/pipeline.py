@@ -31,7 +31,7 @@ import numpy as np
 
 from depth.checkpoint import DEFAULT_WEIGHTS, INDOOR_DEPTH_RANGE, load_checkpoint, trained_depth_range, weights_digest
 from depth.inference import estimate_depth
-from depth.metrics import evaluate_depth_folder
+from depth.metrics import DEPTH_KEYS, evaluate_depth_folder
 from depth.options import DepthOptions
 from fusion.evaluate import mesh_metrics
 from fusion.filtering import FilterConfig, filtered_depth
@@ -464,9 +464,8 @@ class Pipeline:
         d = evaluate_depth_folder(self.out / "depth", kf, max_depth=self.config.evaluation.max_depth,
                                   align="median" if align == "median" else "none", scale=scale)
         d["align"] = align
-        return {"depth": {k: d[k] for k in ("abs_rel", "abs", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3",
-                                           "within_5cm", "near_5cm", "edge_precision", "edge_recall", "edge_f", "coverage", "median_ratio",
-                                           "frames", "min_depth", "max_depth", "align")},
+        return {"depth": {k: d[k] for k in (*DEPTH_KEYS, "edge_precision", "edge_recall", "edge_f", "coverage",
+                                           "median_ratio", "frames", "min_depth", "max_depth", "align")},
                 "temporal": {k: d[k] for k in ("mae_mean", "mae_std", "flicker")},
                 "depth_per_frame": d["per_frame"]}
 
