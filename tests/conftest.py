@@ -14,20 +14,22 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+def _sequence(shared_data: Path, name: str) -> Path:
+    """One shared sequence's folder; the test is skipped when this machine lacks it."""
+    path = shared_data / name
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    return path
+
+
 @pytest.fixture(scope="session")
 def sevenscenes(shared_data) -> Path:
-    p = shared_data / "7scenes-redkitchen"
-    if not p.is_dir():
-        pytest.skip(f"{p} not found")
-    return p
+    return _sequence(shared_data, "7scenes-redkitchen")
 
 
 @pytest.fixture(scope="session")
 def iclnuim(shared_data) -> Path:
-    p = shared_data / "iclnuim-livingroom1"
-    if not p.is_dir():
-        pytest.skip(f"{p} not found")
-    return p
+    return _sequence(shared_data, "iclnuim-livingroom1")
 
 
 @pytest.fixture
