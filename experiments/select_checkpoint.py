@@ -10,8 +10,9 @@ need (experiments/ship_weights.py), `--hybrid` each checkpoint's hybrid row (EST
 sweep), `--mirror` the same rows with the mirrored pass. Every row's depth is also fused (TSDF, 4 cm voxels)
 and scored against the fusion of the scan's GT depth: mesh precision, recall and F-score at 5 cm. "scale"
 is the median prediction / GT ratio (1 = no scale bias); "edge F" whether the depth has the scene's
-occluding edges (`depth.metrics.edge_counts`), "mesh F unculled" the mesh F without the protocol's visibility
-culling (`--rescore` adds both to rows scored before them). Every row
+occluding edges (`depth.metrics.edge_counts`), "near 5 cm" the share of pixels more than 5 cm too near (what the
+culled mesh score charges), "mesh F unculled" the mesh F without the protocol's visibility culling (`--rescore`
+adds all three to rows scored before them). Every row
 sweeps its own trained depth range (the plane sweep and independent rows the first checkpoint's).
 Held-out synthetic rooms: seeds 910001 to 910004 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256;
@@ -80,8 +81,8 @@ def unculled_fscore(folder: Path, row: str) -> float:
 
 
 def rescore(summary: dict, scans: dict, out: Path) -> None:
-    """Edge F and unculled mesh F of rows scored before they existed, from the depth maps and meshes their run
-    left under `out`."""
+    """Edge F, the too-near share and unculled mesh F of rows scored before they existed, from the depth maps and
+    meshes their run left under `out`."""
     from depth.metrics import evaluate_depth_folder
     from recon.errors import ReconError
 
@@ -89,11 +90,13 @@ def rescore(summary: dict, scans: dict, out: Path) -> None:
         name, _, row = key.partition(":")
         for scan_name, scores in per.items():
             folder = out / name / scan_name / (row or name)
-            if "edge_f" not in scores and scan_name in scans and folder.is_dir():
+            missing = [k for k in ("edge_f", "near_5cm") if k not in scores]
+            if missing and scan_name in scans and folder.is_dir():
                 try:
-                    scores["edge_f"] = evaluate_depth_folder(folder, scans[scan_name])["edge_f"]
+                    metrics = evaluate_depth_folder(folder, scans[scan_name])
+                    scores.update({k: metrics[k] for k in missing})
                 except ReconError as e:  # a folder a later run overwrote with fewer frames
-                    print(f"{key} {scan_name}: no edge F ({e})")
+                    print(f"{key} {scan_name}: no {' or '.join(missing)} ({e})")
             mesh_row = row or name
             if "mesh_fscore_unculled" not in scores and (out / name / scan_name / f"mesh_{mesh_row}.ply").is_file():
                 scores["mesh_fscore_unculled"] = unculled_fscore(out / name / scan_name, mesh_row)
@@ -117,7 +120,7 @@ def main(argv=None) -> int:
     p.add_argument("--baseline", type=float, default=SourceConfig.source_baseline, metavar="M",
                    help="ideal source translation (default %(default)s; rows of another are named CHECKPOINT_bM)")
     p.add_argument("--rescore", action="store_true",
-                   help="add edge F and unculled mesh F to every summary row whose depth folders and meshes are "
+                   help="add edge F, near_5cm and unculled mesh F to every summary row whose depth folders and meshes are "
                         "still under --out, then print")
     args = p.parse_args(argv)
 
@@ -164,8 +167,8 @@ def main(argv=None) -> int:
             summary_path.write_text(json.dumps(summary, indent=2))
     names = list(scans)
     print("| checkpoint / row | " + " | ".join(f"{n} Abs Rel / δ<1.25 / within 5 cm / mesh F / scale" for n in names)
-          + " | mean Abs Rel | mean mesh F | mean edge F | mean mesh F unculled |")
-    print("|---|" + "---|" * (len(names) + 4))
+          + " | mean Abs Rel | mean mesh F | mean edge F | mean near 5 cm | mean mesh F unculled |")
+    print("|---|" + "---|" * (len(names) + 5))
     nan = float("nan")
     for key, per in summary.items():
         cells = [f"{per[n]['abs_rel']:.4f} / {per[n]['a1']:.1%} / {per[n].get('within_5cm', nan):.1%}"
@@ -173,9 +176,9 @@ def main(argv=None) -> int:
                  for n in names]
         scored = [n for n in names if n in per]
         mean = {k: sum(per[n].get(k, nan) for n in scored) / max(len(scored), 1)
-                for k in ("abs_rel", "mesh_fscore", "edge_f", "mesh_fscore_unculled")}
+                for k in ("abs_rel", "mesh_fscore", "edge_f", "near_5cm", "mesh_fscore_unculled")}
         print(f"| {key} | " + " | ".join(cells) + f" | {mean['abs_rel']:.4f} | {mean['mesh_fscore']:.3f} | "
-              f"{mean['edge_f']:.3f} | {mean['mesh_fscore_unculled']:.3f} |")
+              f"{mean['edge_f']:.3f} | {mean['near_5cm']:.1%} | {mean['mesh_fscore_unculled']:.3f} |")
     return 0
 
 
