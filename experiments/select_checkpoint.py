@@ -17,7 +17,8 @@ sweeps its own trained depth range (the plane sweep and independent rows the fir
 Held-out synthetic rooms: seeds 910001 to 910004 (training rooms come from other seeds,
 validation clips from 900001/900051), 30 frames at 3 fps with realistic sensor effects, 320x256;
 910003 and 910004 since 2026-12-05, to dilute the demo room's swings: rows scored before lack them,
-and experiments/ship_weights.py compares rows on the scans both have.
+and experiments/ship_weights.py compares rows on the scans both have. `--rows-from lite-preview` starts a
+fresh machine's summary from the rows a shipped file recorded when it shipped (runs/ does not always survive).
 The demo room (seed 7, clean): every 4th frame, 320x240. ICL-NUIM living room 1: every 5th frame at
 320x256. Writes summary.json and prints a table.
 """
@@ -119,6 +120,10 @@ def main(argv=None) -> int:
                    help="sources per frame (default %(default)s; rows of another count are named CHECKPOINT_sN)")
     p.add_argument("--baseline", type=float, default=SourceConfig.source_baseline, metavar="M",
                    help="ideal source translation (default %(default)s; rows of another are named CHECKPOINT_bM)")
+    p.add_argument("--rows-from", nargs="+", default=[], metavar="WEIGHTS",
+                   help="first add the held-out rows these shipped files record (their own, the plane sweep's, the "
+                        "incumbent's; rows already in summary.json are kept), so a fresh machine can apply the shipping "
+                        "rules without scoring them again")
     p.add_argument("--rescore", action="store_true",
                    help="add edge F, near_5cm and unculled mesh F to every summary row whose depth folders and meshes are "
                         "still under --out, then print")
@@ -128,6 +133,7 @@ def main(argv=None) -> int:
 
     from depth.checkpoint import trained_depth_range
     from experiments.results_7scenes import TableOptions, depth_table, mesh_scores
+    from experiments.ship_weights import shipped_rows
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -146,8 +152,12 @@ def main(argv=None) -> int:
     if args.baselines and args.checkpoints:  # the plane sweep needs no weights: one folder serves every checkpoint
         jobs.append(("planesweep", args.checkpoints[0], ("planesweep",)))
         jobs.append((Path(args.checkpoints[0]).stem + "_baselines", args.checkpoints[0], ("independent",)))
+    for weights in args.rows_from:
+        for key, per in shipped_rows(weights).items():
+            summary.setdefault(key, per)
     if args.rescore:
         rescore(summary, scans, out)
+    if args.rescore or args.rows_from:
         summary_path.write_text(json.dumps(summary, indent=2))
     for name, ck, rows in jobs:
         for scan_name, scan in scans.items():

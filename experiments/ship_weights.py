@@ -99,6 +99,20 @@ def beats_preview(sel: dict, key: str, preview: Path) -> bool:
     return new_rel < old_rel
 
 
+def shipped_rows(weights: str) -> dict:
+    """The held-out rows a shipped file records (its own, the plane sweep's, its incumbent's), keyed as in a
+    selection's summary.json: on a machine that lost the selection folder they let the rules be applied
+    without scoring the shipped files again (experiments/select_checkpoint.py --rows-from)."""
+    from depth.checkpoint import load_checkpoint
+
+    validation = load_checkpoint(weights).metadata.get("validation") or {}
+    rows = dict(validation.get("heldout_scans") or {})
+    incumbent = validation.get("incumbent")
+    if incumbent:
+        rows[f"{incumbent['weights']}:estm_m2"] = incumbent["heldout_scans"]
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("checkpoint")

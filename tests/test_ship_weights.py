@@ -45,6 +45,7 @@ def ship(tmp_path, monkeypatch):
         return module.main([str(ckpt), "--run", str(run), "--selection", str(sel), "--name", "lite",
                             "--incumbent", "compact"])
 
+    main.shipped_rows = module.shipped_rows
     return main, weights
 
 
@@ -93,3 +94,12 @@ def test_beating_an_incumbent_that_loses_to_the_plane_sweep_on_every_scan_ships_
     assert rules["beats plane sweep mesh on every scan"] is False
     assert rules["beats compact on every scan"] is True
 
+
+
+def test_a_shipped_file_gives_back_the_rows_that_decided_it(ship):
+    """A fresh machine without runs/ rebuilds the selection from the shipped file (select_checkpoint --rows-from):
+    the plane sweep's, the incumbent's and the file's own rows, exactly as they were scored."""
+    main, weights = ship
+    assert main(1, {"step_000001": _row(0.25, 0.3)}) == 0
+    assert main.shipped_rows(weights / "lite-preview.pt") == {
+        "planesweep": PLANESWEEP, "compact:estm_m2": COMPACT_ROW, "step_000001:estm_m2": _row(0.25, 0.3)}
