@@ -51,7 +51,9 @@ def test_adapted_copy_lowers_the_loss_and_leaves_the_model_alone(scan):
         with torch.no_grad():
             return float(self_supervised_loss(images, K, poses, m(images, K, poses, rng)))
 
-    adapted, summary = adapted_copy(model, scan.select(0, 1, 5), (1.0, 5.0), AdaptOptions(steps=8, lr=1e-3))
+    # lr 2e-3: at 1e-3 eight steps took just over 10 % off on earlier sessions' Intel CPUs and 9.8 % on an AMD EPYC
+    # (2026-12-07), too close to the bar to say anything; at 2e-3 they take 15 % there
+    adapted, summary = adapted_copy(model, scan.select(0, 1, 5), (1.0, 5.0), AdaptOptions(steps=8, lr=2e-3))
     assert all(torch.equal(v, model.state_dict()[k]) for k, v in before.items())
     assert any(not torch.equal(v, adapted.state_dict()[k]) for k, v in before.items() if v.is_floating_point())
     assert not adapted.training and summary["steps"] == 8 and summary["seconds"] > 0
