@@ -95,7 +95,6 @@ def test_beating_an_incumbent_that_loses_to_the_plane_sweep_on_every_scan_ships_
     assert rules["beats compact on every scan"] is True
 
 
-
 def test_a_shipped_file_gives_back_the_rows_that_decided_it(ship):
     """A fresh machine without runs/ rebuilds the selection from the shipped file (select_checkpoint --rows-from):
     the plane sweep's, the incumbent's and the file's own rows, exactly as they were scored."""
