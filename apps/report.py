@@ -194,9 +194,15 @@ def sfm_section(scan) -> dict | None:
                      "SfM mapped again without them and kept the model more pairs agree with"))
     return {"rows": [{"label": k, "value": "n/a" if v is None else v, "help": h} for k, v, h in rows],
             "timings": [(k, _seconds(v)) for k, v in (sfm.get("timings_s") or {}).items()],
-            "unregistered": ", ".join(n for n in sfm.get("unregistered") or [] if n not in displaced),
+            "unregistered": ", ".join(_with_links(n, sfm.get("unregistered_links") or {})
+                                      for n in sfm.get("unregistered") or [] if n not in displaced),
             "displaced": ", ".join(displaced),
             "tracks": track_length_plot(sfm.get("track_length_histogram") or {})}
+
+
+def _with_links(name: str, links: dict[str, int]) -> str:
+    """An unregistered frame's name, with the most verified matches it shares with a posed frame when known."""
+    return f"{name} ({links[name]} matches with a posed frame)" if name in links else name
 
 
 def track_length_plot(histogram: dict[str, int]) -> str | None:

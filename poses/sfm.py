@@ -141,6 +141,7 @@ class SfMResult:
     displaced: list[str] = field(default_factory=list)  # posed where the video's path or the photo's pairs say it
     # is not, left unposed
     pruning: dict = field(default_factory=dict)  # photos: the second mapping without the pairs far off the first
+    links: dict = field(default_factory=dict)  # unposed (not displaced) name: most verified matches with a posed one
 
 
 def _pycolmap():
@@ -444,12 +445,32 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     camera_report = {"model": cam.model_name, "width": cam.width, "height": cam.height,
                      "params": [float(p) for p in cam.params], "from_capture": camera is not None}
     missed = [name for name in unregistered if name not in displaced]
+    links = links_to_posed(database_path, set(registered), missed)
     if missed:
-        log.warning("sfm: %d of %d frames did not register and are left out: %s", len(missed), n,
-                    ", ".join(missed[:10]) + (" ..." if len(missed) > 10 else ""))
+        log.warning("sfm: %d of %d frames did not register and are left out: %s (in brackets: the most verified "
+                    "matches each shares with a posed frame; a frame needs a few dozen, so take views that overlap "
+                    "it and more textured surfaces)", len(missed), n,
+                    ", ".join(f"{name} ({links[name]})" for name in missed[:10]) + (" ..." if len(missed) > 10 else ""))
     return SfMResult(rec, image_dir, attempt.mapper, registered, unregistered, timings, work_dir, database_path,
                      model_dir, attempts, camera_report, parallax, matcher, loops=loops, distortion=distortion,
-                     displaced=displaced, pruning=pruning)
+                     displaced=displaced, pruning=pruning, links=links)
+
+
+def links_to_posed(database_path: Path, posed: set[str], unposed: list[str]) -> dict[str, int]:
+    """{unposed image name: the most verified inlier matches it shares with any posed image}: why it stayed out
+    (a view of a bare wall shares a handful, a photo of another room none)."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(database_path)
+    try:
+        names = {im.image_id: im.name for im in db.read_all_images()}
+    finally:
+        db.close()
+    links = dict.fromkeys(unposed, 0)
+    for a, b, geometry in two_view_geometries(database_path):
+        for mine, other in ((names[a], names[b]), (names[b], names[a])):
+            if mine in links and other in posed:
+                links[mine] = max(links[mine], len(geometry.inlier_matches))
+    return links
 
 
 def drop_displaced_blocks(rec, image_names: list[str]) -> list[str]:
@@ -809,6 +830,7 @@ def scan_from_sfm(result: SfMResult) -> Scan:
     scan.metadata.extra["sfm"] = {
         "mapper": result.mapper, "matcher": result.matcher, "loops": result.loops, "registered": len(result.registered),
         "unregistered": [Path(n).stem for n in result.unregistered], "attempts": result.attempts,
+        "unregistered_links": {Path(n).stem: k for n, k in result.links.items()},
         "displaced": [Path(n).stem for n in result.displaced], "pair_pruning": result.pruning,
         "timings_s": {k: round(v, 2) for k, v in result.timings.items()}, "camera": result.camera,
         "distortion_test": result.distortion, "parallax": round(result.parallax, 4),

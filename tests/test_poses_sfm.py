@@ -3,6 +3,7 @@
 The 7-Scenes checks read ../shared/data and skip when it is absent.
 """
 import json
+import re
 from pathlib import Path
 import cv2
 import numpy as np
@@ -200,6 +201,37 @@ def test_two_sfm_runs_of_one_video_give_identical_poses_and_a_pinhole(room_video
     assert first.intrinsics.fx == pytest.approx(gt.intrinsics.fx, rel=0.1)
     m = pose_metrics(first, gt)
     assert m["ate_rmse"] <= 0.02 * m["trajectory_length"]
+
+
+def test_frames_left_out_are_named_with_their_matches_to_the_model(room_video, tmp_path, caplog):
+    """The room's frames as a folder, plus two photos of something else: those two stay unposed, and the warning,
+    report.json and the report say they share no verified match with a posed frame, while any posed frame, taken
+    out, would share enough to be placed."""
+    import pycolmap
+
+    from apps.report import sfm_section
+    from poses.sfm import links_to_posed
+
+    gt = open_scan(room_video)
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    for i in range(len(gt)):
+        cv2.imwrite(str(folder / f"{gt.names[i]}.png"), cv2.cvtColor(gt.image(i), cv2.COLOR_RGB2BGR))
+    for i in range(2):
+        noise = np.random.default_rng(7 + i).uniform(0, 255, (60, 80, 3)).astype(np.float32)
+        cv2.imwrite(str(folder / f"zz_other_{i}.png"), cv2.resize(noise, (gt.intrinsics.width, gt.intrinsics.height),
+                                                                               interpolation=cv2.INTER_CUBIC))
+    with caplog.at_level("WARNING"):
+        scan, report = estimate_poses(folder, tmp_path / "poses", PosesConfig(ingest=IngestConfig(blur_ratio=0.0)))
+    links = report["sfm"]["unregistered_links"]
+    assert links["zz_other_0"] == 0 and links["zz_other_1"] == 0 and len(scan) >= len(gt) - 2
+    assert re.search(r"zz_other_0\.\w+ \(0\)", caplog.text)
+    assert "zz_other_1 (0 matches with a posed frame)" in sfm_section(scan)["unregistered"]
+    database = tmp_path / "poses" / "colmap" / "database.db"
+    db = pycolmap.Database.open(database)
+    posed = {im.name for im in db.read_all_images() if Path(im.name).stem in scan.names}
+    db.close()
+    assert min(links_to_posed(database, posed - {name}, [name])[name] for name in posed) >= 15
 
 
 def _distort(image: np.ndarray, K: np.ndarray, k1: float) -> np.ndarray:
