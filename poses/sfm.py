@@ -445,7 +445,7 @@ def run_sfm(image_dir: str | os.PathLike, image_names: list[str], work_dir: str 
     camera_report = {"model": cam.model_name, "width": cam.width, "height": cam.height,
                      "params": [float(p) for p in cam.params], "from_capture": camera is not None}
     missed = [name for name in unregistered if name not in displaced]
-    links = links_to_posed(database_path, set(registered), missed)
+    links = links_to_posed(database_path, set(registered), missed) if missed else {}
     if missed:
         log.warning("sfm: %d of %d frames did not register and are left out: %s (in brackets: the most verified "
                     "matches each shares with a posed frame; a frame needs a few dozen, so take views that overlap "
