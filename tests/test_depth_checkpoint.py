@@ -126,3 +126,35 @@ def test_with_config_changes_the_forward_pass_not_the_weights(tmp_path):
     assert all(torch.equal(before.state_dict[k], v) for k, v in after.state_dict.items())
     with pytest.raises(ReconError, match="differs in refine_keeps_scale"):
         load_checkpoint(tmp_path / "b.pt", expected=free)
+
+
+def test_fewer_planes_keeps_what_the_plane_layers_compute(tmp_path):
+    """experiments/fewer_planes.py: layers that read plane channels sum a linear-in-depth signal as before,
+    layers that write them give the old channels at the new planes' positions, and the file loads as 8 planes."""
+    from experiments.fewer_planes import interpolation, main
+
+    net = _trained_like()
+    src = save_checkpoint(tmp_path / "a.pt", net, TINY, {"steps": 7})
+    assert main([str(src), "--planes", "8", "--out", str(tmp_path / "b.pt")]) == 0
+    old, new = load_checkpoint(src), load_checkpoint(tmp_path / "b.pt", expected=TINY.replace(num_planes=8))
+    assert new.metadata["steps"] == 7 and new.metadata["planes_changed"]["to"] == 8
+    position = torch.linspace(0, 15, 8)
+    signal_old, signal_new = 0.3 + 0.2 * torch.arange(16.0), 0.3 + 0.2 * position
+    key = "refine.stage1_in.0.weight"  # reads [context, logits], 16 + 16 channels, now 8 + 8
+    before = torch.einsum("oikl,i->o", old.state_dict[key], torch.cat([signal_old, 2 * signal_old]))
+    after = torch.einsum("oikl,i->o", new.state_dict[key], torch.cat([signal_new, 2 * signal_new]))
+    assert torch.allclose(before, after, atol=1e-4) and not torch.allclose(before, 0 * before)
+    last = max(int(k.split(".")[2]) for k in old.state_dict if k.startswith("context.up_convs."))
+    key = f"context.up_convs.{last}.0.weight"  # writes one channel per plane
+    expected = torch.einsum("no,oikl->nikl", interpolation(16, 8).float(), old.state_dict[key])
+    assert torch.allclose(new.state_dict[key], expected, atol=1e-6)
+    assert torch.equal(new.state_dict[key][0], old.state_dict[key][0])
+    assert torch.equal(new.state_dict[key][-1], old.state_dict[key][-1])
+    model = build_model(new)
+    images, K = torch.rand(1, 3, 3, TINY.image_height, TINY.image_width), torch.eye(3)[None]
+    K[0, 0, 0], K[0, 1, 1], K[0, 0, 2], K[0, 1, 2] = 80.0, 80.0, TINY.image_width / 2, TINY.image_height / 2
+    poses = torch.eye(4).repeat(1, 3, 1, 1)
+    poses[0, :, 0, 3] = torch.tensor([-0.1, 0.0, 0.1])
+    with torch.no_grad():
+        depth = model(images, K, poses, torch.tensor([[0.5, 5.0]]))[0].depths[3]
+    assert torch.isfinite(depth).all() and depth.min() >= 0.5 and depth.max() <= 5.0
