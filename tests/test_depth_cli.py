@@ -80,6 +80,22 @@ def test_recon_bench_depth_json(capsys):
     assert 15 < result["gmacs"] < 20 and result["s_per_frame"] > 0 and result["frames"] == 1
 
 
+def test_recon_bench_depth_times_the_config_of_weights(tmp_path, capsys):
+    """--config also takes weights, whose own config (here 8 planes, which no named config has) is timed."""
+    from depth.checkpoint import save_checkpoint
+    from depth.config import TINY
+    from depth.model import ESTNet
+
+    cfg = TINY.replace(num_planes=8)
+    weights = save_checkpoint(tmp_path / "eight.pt", ESTNet(cfg), cfg)
+    assert main(["bench", "depth", "--config", str(weights), "--frames", "1", "--threads", "1", "--no-baseline",
+                 "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["config"] == "tiny" and result["num_planes"] == 8 and result["s_per_frame"] > 0
+    assert main(["bench", "depth", "--config", "nonesuch", "--frames", "1"]) == 2
+    assert "nonesuch" in capsys.readouterr().err
+
+
 def test_recon_bench_train_times_the_precision_training_picks(capsys):
     import torch
 

@@ -22,7 +22,9 @@ from recon.errors import ReconError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", default="compact", help="network config: lite, compact or paper (default compact)")
+    parser.add_argument("--config", default="compact",
+                        help="network config: lite, compact or paper, or weights (a shipped name such as lite-preview, "
+                             "or a file) whose config is timed (default compact)")
     parser.add_argument("--mode", choices=("estm", "joint", "independent"), default="estm")
     parser.add_argument("--frames", type=int, default=8, help="frames timed after 3 warm-up frames (default 8)")
     parser.add_argument("--memory", type=int, default=None, metavar="N", help="ESTM memory length (default 2)")
@@ -60,9 +62,17 @@ def _peak_mb(device: torch.device) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux reports KiB
 
 
+def bench_config(config: str):
+    """A named network config, else the config that weights (a shipped name or a file) were trained with: the
+    shipped files may differ from the named configs (e.g. in plane count). Timing uses random weights either way."""
+    from depth.checkpoint import load_checkpoint
+    from depth.config import CONFIGS, get_config
+
+    return get_config(config) if config in CONFIGS else load_checkpoint(config).config
+
+
 def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None = None, device: str = "auto",
             baseline: bool = True, precision: str = "fp32", compile: bool = False) -> dict:
-    from depth.config import get_config
     from depth.device import resolve_device, resolve_precision
     from depth.inference import DepthEstimator, DepthOptions, run_planesweep
     from depth.model import ESTNet
@@ -71,7 +81,7 @@ def measure(config: str, mode: str = "estm", frames: int = 8, memory: int | None
 
     if frames < 1:
         raise ReconError(f"--frames must be at least 1, got {frames}")
-    cfg = get_config(config)
+    cfg = bench_config(config)
     dev = resolve_device(device)
     torch.manual_seed(0)
     model = ESTNet(cfg)
