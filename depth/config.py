@@ -117,10 +117,11 @@ COMPACT = ESTConfig(
     refine_keeps_scale=True,  # the shipped weights since 2026-12-04 (docs/depth.md, "`compact` trained with the rescale")
 )
 
-# The default from v2 on (docs/depth.md, "`lite`"): an ImageNet-pretrained
-# EfficientNet-Lite0 encoder, 64 log-spaced planes, match metadata, a scale-keeping RefineNet; EST parts as in compact.
+# The v2 configuration (docs/depth.md, "`lite`"): an ImageNet-pretrained EfficientNet-Lite0 encoder, 32 log-spaced
+# planes (64 until 2026-12-08: half the time, for the 0.5 s/frame target), match metadata, a scale-keeping
+# RefineNet; EST parts as in compact.
 LITE = COMPACT.replace(
-    name="lite", num_planes=64, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,
+    name="lite", num_planes=32, plane_spacing="log", encoder="efficientnet-lite0", encoder_frozen_blocks=8,
     match_metadata=True, feature_channels=32, context_decoder_channels=(96, 64), refine_channels=(32, 16))
 
 # Smallest network with every part, for tests and smoke runs (not a shipped configuration).

@@ -140,4 +140,4 @@ def test_wrong_encoder_file_is_one_clear_line(lite_run_inputs, tmp_path, monkeyp
 
 def test_lite_config_is_the_documented_one():
     assert (LITE.encoder, LITE.num_planes, LITE.plane_spacing, LITE.match_metadata) == (
-        "efficientnet-lite0", 64, "log", True)
+        "efficientnet-lite0", 32, "log", True)
